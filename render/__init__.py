@@ -1,0 +1,1 @@
+"""Offscreen hair rasteriser: polylines and meshes in, images and videos out. No physics."""

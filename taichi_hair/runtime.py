@@ -1,0 +1,69 @@
+"""Taichi initialisation: once per process, with the precision chosen for every field.
+
+`init` wraps `ti.init`. Fields and kernels use Taichi's `float`, which resolves to the
+precision chosen here, so one call decides float32 or float64 for the whole process.
+"""
+
+import taichi as ti
+
+_ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
+_PRECISIONS = {"float32": ti.f32, "float64": ti.f64}
+_state = {"arch": None, "precision": None}
+
+
+def taichi_is_initialized() -> bool:
+    """True once `ti.init` has run in this process (by us or by anyone else)."""
+    return ti.lang.impl.get_runtime().prog is not None
+
+
+def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, **kwargs) -> None:
+    """Initialise Taichi once for this process.
+
+    arch: "cpu" (default), "cuda", "gpu", "vulkan" or "metal".
+    precision: "float32" (default) or "float64"; the float type of every simulator field.
+    Calling again with the same settings is a no-op; with different settings it raises,
+    because Taichi fields and compiled kernels cannot change precision mid-process.
+    Extra keyword arguments go to `ti.init` unchanged.
+    """
+    if arch not in _ARCHES:
+        raise ValueError(f"arch must be one of {sorted(_ARCHES)}, got {arch!r}")
+    if precision not in _PRECISIONS:
+        raise ValueError(f"precision must be one of {sorted(_PRECISIONS)}, got {precision!r}")
+    if _state["precision"] is not None:
+        if (_state["arch"], _state["precision"]) != (arch, precision):
+            raise RuntimeError(
+                f"taichi_hair is already initialised with arch={_state['arch']!r}, "
+                f"precision={_state['precision']!r}; Taichi can only be initialised once per process"
+            )
+        return
+    if taichi_is_initialized():
+        raise RuntimeError(
+            "Taichi was initialised before taichi_hair.init(); call taichi_hair.init() first "
+            "so that the simulator's precision is known"
+        )
+    options = dict(arch=_ARCHES[arch], default_fp=_PRECISIONS[precision], debug=debug,
+                   log_level=ti.WARN, random_seed=0)
+    if arch != "cpu" and precision == "float64":
+        # fast_math rewrites float64 sqrt as float32 on CUDA
+        options["fast_math"] = False
+    options.update(kwargs)
+    ti.init(**options)
+    _state["arch"], _state["precision"] = arch, precision
+
+
+def ensure_init() -> None:
+    """Initialise with the defaults (CPU, float32) unless `init` already ran."""
+    if _state["precision"] is None:
+        init()
+
+
+def precision() -> str:
+    """"float32" or "float64": the precision of this process's fields (initialising if needed)."""
+    ensure_init()
+    return _state["precision"]
+
+
+def arch() -> str:
+    """The arch name passed to `init` (initialising if needed)."""
+    ensure_init()
+    return _state["arch"]
