@@ -1,0 +1,191 @@
+"""Scene inputs as validated numpy data: hair polylines and triangle meshes.
+
+Colours are sRGB in [0, 1] as users pick them; they are converted to linear light here,
+because shading and the blending of thin fibres are only correct in linear light.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear light, same shape."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _colour(name: str, value) -> np.ndarray:
+    c = np.asarray(value, dtype=np.float64)
+    if c.shape != (3,) or not np.all((c >= 0.0) & (c <= 1.0)):
+        raise ValueError(f"{name} must be 3 sRGB values in [0, 1], got {value!r}")
+    return c
+
+
+def _strands(points) -> list[np.ndarray]:
+    """[S, N, 3] array or a sequence of [N_i, 3] arrays -> list of float64 [N_i, 3]."""
+    if isinstance(points, np.ndarray) and points.ndim == 3:
+        strands = list(points)
+    elif isinstance(points, (list, tuple)):
+        strands = [np.asarray(p, dtype=np.float64) for p in points]
+    else:
+        shape = getattr(points, "shape", type(points).__name__)
+        raise ValueError(f"points must be an [S, N, 3] array or a list of [N_i, 3] arrays, got {shape}")
+    if not strands:
+        raise ValueError("points must hold at least one strand, got none")
+    for i, p in enumerate(strands):
+        if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] < 2:
+            raise ValueError(f"points: strand {i} must have shape [N >= 2, 3], got {p.shape}")
+    return strands
+
+
+def _per_vertex(name: str, value, counts: np.ndarray, tail: tuple) -> np.ndarray:
+    """Broadcast a per-hair, per-strand or per-vertex attribute to all V vertices, (V, *tail)."""
+    n_strands, n_vertices = len(counts), int(counts.sum())
+    if isinstance(value, (list, tuple)) and len(value) == n_strands and n_strands > 0 \
+            and np.ndim(value[0]) == 1 + len(tail) and np.shape(value[0])[0] == counts[0]:
+        parts = [np.asarray(v, dtype=np.float64) for v in value]
+        if any(p.shape != (c, *tail) for p, c in zip(parts, counts)):
+            raise ValueError(f"{name}: per-vertex list entries must have shape [N_i, *{tail}]")
+        return np.concatenate(parts)
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape == tail:
+        return np.broadcast_to(a, (n_vertices, *tail))
+    if a.shape == (n_strands, *tail):
+        return np.repeat(a, counts, axis=0)
+    if a.ndim == 2 + len(tail) and a.shape[:2] == (n_strands, counts[0]) and np.all(counts == counts[0]):
+        return a.reshape(n_vertices, *tail)
+    raise ValueError(f"{name} must have shape {tail}, (S, *{tail}) or (S, N, *{tail}) "
+                     f"with S={n_strands}, got {a.shape}")
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Hair:
+    """Hair as polylines.
+
+    points [m]: array [S, N, 3], or a list of S arrays [N_i, 3] (ragged), N >= 2.
+    colours: sRGB in [0, 1]; shape (3,) for all hair, (S, 3) per strand, or per vertex
+        ((S, N, 3) or a list of [N_i, 3]).
+    widths [m] > 0: fibre (or ribbon) width; a scalar, (S,) per strand, or per vertex
+        ((S, N) or a list of [N_i]). Real hair is 50-100 um wide.
+    opacity in (0, 1]: alpha of a fibre covering a whole pixel.
+
+    Derived at construction (float32 / int32, V vertices, E segments): `vertices` (V, 3),
+    `vertex_colours` (V, 3) linear, `vertex_widths` (V,), `segments` (E,) index of each
+    segment's first vertex, `neighbours` (V, 2) previous and next vertex on the strand (the
+    vertex itself at the ends), used for tangents.
+    """
+
+    points: object
+    colours: object = (0.30, 0.18, 0.10)
+    widths: object = 1e-4
+    opacity: float = 1.0
+    vertices: np.ndarray = field(init=False, repr=False)
+    vertex_colours: np.ndarray = field(init=False, repr=False)
+    vertex_widths: np.ndarray = field(init=False, repr=False)
+    segments: np.ndarray = field(init=False, repr=False)
+    neighbours: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        strands = _strands(self.points)
+        counts = np.array([len(p) for p in strands], dtype=np.int64)
+        x = np.concatenate(strands) if strands else np.zeros((0, 3))
+        if not np.all(np.isfinite(x)):
+            raise ValueError("points must be finite, got NaN or inf")
+        colours = _per_vertex("colours", self.colours, counts, (3,))
+        if colours.size and not np.all((colours >= 0.0) & (colours <= 1.0)):
+            raise ValueError(f"colours must be sRGB in [0, 1], got range "
+                             f"[{colours.min():.3g}, {colours.max():.3g}]")
+        widths = _per_vertex("widths", self.widths, counts, ())
+        if widths.size and not (np.all(np.isfinite(widths)) and widths.min() > 0.0):
+            raise ValueError(f"widths must be > 0 m, got minimum {widths.min():.3g}")
+        if not 0.0 < self.opacity <= 1.0:
+            raise ValueError(f"opacity must be in (0, 1], got {self.opacity}")
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        ends = starts + counts - 1
+        idx = np.arange(len(x))
+        prev, nxt = idx - 1, idx + 1
+        prev[starts], nxt[ends] = starts, ends
+        is_last = np.zeros(len(x), dtype=bool)
+        is_last[ends] = True
+        set_ = lambda n, v: object.__setattr__(self, n, v)
+        set_("vertices", x.astype(np.float32))
+        set_("vertex_colours", srgb_to_linear(colours).astype(np.float32))
+        set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
+        set_("segments", idx[~is_last].astype(np.int32))
+        set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals, (V, 3), of a triangle mesh (V, 3) [m], (F, 3)."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0.0, length, 1.0)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Mesh:
+    """Triangle mesh, shaded Lambert + Blinn and shadowed by hair.
+
+    vertices [m]: (V, 3). faces: (F, 3) integer indices into vertices.
+    colours: sRGB in [0, 1], (3,) or per vertex (V, 3).
+    normals: (V, 3) or None for smooth area-weighted normals. Lighting is two-sided.
+    specular >= 0: Blinn highlight strength; shininess >= 1: Blinn exponent.
+    """
+
+    vertices: object
+    faces: object
+    colours: object = (0.80, 0.62, 0.52)
+    normals: object = None
+    specular: float = 0.15
+    shininess: float = 30.0
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, dtype=np.float64)
+        f = np.asarray(self.faces)
+        if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+            raise ValueError(f"vertices must be a finite (V, 3) array, got shape {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+            raise ValueError(f"faces must be an integer (F, 3) array, got {f.dtype} {f.shape}")
+        if f.size and (f.min() < 0 or f.max() >= len(v)):
+            raise ValueError(f"faces must index vertices in [0, {len(v) - 1}], "
+                             f"got [{f.min()}, {f.max()}]")
+        c = np.asarray(self.colours, dtype=np.float64)
+        if c.shape not in ((3,), (len(v), 3)) or not np.all((c >= 0.0) & (c <= 1.0)):
+            raise ValueError(f"colours must be sRGB in [0, 1] of shape (3,) or ({len(v)}, 3), "
+                             f"got shape {c.shape}")
+        n = vertex_normals(v, f) if self.normals is None else np.asarray(self.normals, float)
+        if n.shape != v.shape:
+            raise ValueError(f"normals must have shape {v.shape}, got {n.shape}")
+        if not self.specular >= 0.0:
+            raise ValueError(f"specular must be >= 0, got {self.specular}")
+        if not self.shininess >= 1.0:
+            raise ValueError(f"shininess must be >= 1, got {self.shininess}")
+        set_ = lambda name, val: object.__setattr__(self, name, val)
+        set_("vertices", v)
+        set_("faces", f.astype(np.int64))
+        set_("colours", np.broadcast_to(c, v.shape))
+        set_("normals", n)
+
+
+def merge_meshes(meshes) -> dict:
+    """Concatenate meshes for the kernels. Returns float32/int32 arrays: x (V, 3) [m],
+    normal (V, 3), colour (V, 3) linear, faces (F, 3), material (F, 2) (specular, shininess)."""
+    meshes = list(meshes)
+    for i, m in enumerate(meshes):
+        if not isinstance(m, Mesh):
+            raise ValueError(f"meshes[{i}] must be a render.Mesh, got {type(m).__name__}")
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)
+    return dict(
+        x=cat([m.vertices for m in meshes], (0, 3)).astype(np.float32),
+        normal=cat([m.normals for m in meshes], (0, 3)).astype(np.float32),
+        colour=srgb_to_linear(cat([m.colours for m in meshes], (0, 3))).astype(np.float32),
+        faces=cat([m.faces + o for m, o in zip(meshes, offsets)], (0, 3)).astype(np.int32),
+        material=cat([np.tile([m.specular, m.shininess], (len(m.faces), 1)) for m in meshes],
+                     (0, 2)).astype(np.float32),
+    )

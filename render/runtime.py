@@ -1,0 +1,68 @@
+"""Taichi start-up and device buffers for the renderer.
+
+The renderer never re-initialises Taichi: if the process (or taichi_hair's `th.init`, or the
+test suite) already called `ti.init`, that runtime is used as it is. Every render kernel types
+its floats as `ti.f32` explicitly, so the process's `default_fp` does not matter here.
+
+Per-frame inputs and buffers are `ti.ndarray`s cached by (name, dtype, shape): ndarray kernels
+compile once per process, whereas kernels taking fields as templates recompile for every new
+field.
+"""
+
+import numpy as np
+import taichi as ti
+
+_ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
+_buffers: dict = {}
+
+
+def is_initialized() -> bool:
+    """True once `ti.init` has run in this process, by anyone."""
+    return ti.lang.impl.get_runtime().prog is not None
+
+
+def init(arch: str = "cpu", **kwargs) -> None:
+    """Initialise Taichi for rendering unless it is already initialised (then a no-op).
+
+    arch: "cpu" (default), "cuda", "gpu", "vulkan" or "metal". Extra keyword arguments go to
+    `ti.init`. To use taichi_hair in the same process, call `taichi_hair.init` first: it refuses
+    to run after another `ti.init`.
+    """
+    if arch not in _ARCHES:
+        raise ValueError(f"arch must be one of {sorted(_ARCHES)}, got {arch!r}")
+    if is_initialized():
+        return
+    options = dict(arch=_ARCHES[arch], default_fp=ti.f32, log_level=ti.WARN)
+    options.update(kwargs)
+    ti.init(**options)
+
+
+def ensure_init() -> None:
+    """Initialise on the CPU with defaults if nobody has initialised Taichi yet."""
+    if not is_initialized():
+        init()
+
+
+def buffer(name: str, dtype, shape: tuple, n: int = 0) -> ti.Ndarray:
+    """A cached `ti.ndarray` of `dtype` (a Taichi scalar or vector type) and `shape`.
+
+    `n` is the vector length for vector dtypes (0 for scalars); it only keys the cache.
+    The contents are whatever the last user left: callers clear or overwrite them.
+    """
+    shape = tuple(int(s) for s in shape)
+    key = (name, str(dtype), n, shape)
+    if key not in _buffers:
+        # drop stale buffers of the same name so a resolution sweep does not pile up memory
+        for old in [k for k in _buffers if k[0] == name]:
+            del _buffers[old]
+        _buffers[key] = ti.ndarray(dtype, shape)
+    return _buffers[key]
+
+
+def upload(name: str, array: np.ndarray, dtype, n: int = 0) -> ti.Ndarray:
+    """Copy a numpy array into the cached ndarray `name` (scalar: shape of array; vector of
+    length n: shape of array without its last axis) and return it."""
+    shape = array.shape[:-1] if n else array.shape
+    nd = buffer(name, dtype, shape, n)
+    nd.from_numpy(array)
+    return nd

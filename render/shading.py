@@ -1,0 +1,181 @@
+"""Lights and shading models: Kajiya-Kay hair with two shifted lobes, Lambert + Blinn skin.
+
+All radiometric quantities are linear RGB. Hair is shaded per vertex (tangent from the
+neighbouring vertices) and interpolated along segments; meshes are shaded per pixel in
+`raster.shade_mesh`.
+
+Kajiya-Kay with shifted lobes (Scheuermann 2004, after Marschner et al. 2003): with T the unit
+tangent, L the direction to the light, V to the eye and H = (L + V)/|L + V|, the longitudinal
+half angle is theta_h = asin(T.H). A lobe with shift s and exponent p is cos(theta_h - s)^p;
+for s = 0 it is sin(T, H)^p, the Kajiya-Kay highlight, largest where T is perpendicular to H.
+The primary lobe (R, surface reflection) is white; the secondary (TRT, light that entered the
+fibre) is tinted by the hair colour and shifted the other way.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from .camera import f32, vec3f, vec4f
+from .geometry import _colour, srgb_to_linear
+from .runtime import ensure_init, upload, buffer
+
+vec8f = ti.types.vector(8, ti.f32)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Light:
+    """Directional key light. to_light: direction from the scene towards the light (normalised
+    here). colour: sRGB in [0, 1]. intensity >= 0: multiplies colour (linear)."""
+
+    to_light: tuple = (0.4, 0.7, 0.6)
+    colour: tuple = (1.0, 0.97, 0.92)
+    intensity: float = 2.5
+
+    def __post_init__(self):
+        d = np.asarray(self.to_light, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
+            raise ValueError(f"to_light must be a non-zero 3-vector, got {self.to_light!r}")
+        object.__setattr__(self, "to_light", tuple(d / np.linalg.norm(d)))
+        object.__setattr__(self, "colour", tuple(_colour("colour", self.colour)))
+        if not self.intensity >= 0.0:
+            raise ValueError(f"intensity must be >= 0, got {self.intensity}")
+
+    def radiance(self) -> np.ndarray:
+        """Linear RGB irradiance of the light, (3,) float32."""
+        return (srgb_to_linear(self.colour) * self.intensity).astype(np.float32)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Lighting:
+    """A shadowed key light plus unshadowed ambient light (sRGB colour times intensity)."""
+
+    key: Light = Light()
+    ambient: tuple = (0.75, 0.8, 1.0)
+    ambient_intensity: float = 0.25
+
+    def __post_init__(self):
+        if not isinstance(self.key, Light):
+            raise ValueError(f"key must be a render.Light, got {type(self.key).__name__}")
+        object.__setattr__(self, "ambient", tuple(_colour("ambient", self.ambient)))
+        if not self.ambient_intensity >= 0.0:
+            raise ValueError(f"ambient_intensity must be >= 0, got {self.ambient_intensity}")
+
+    def ambient_radiance(self) -> np.ndarray:
+        return (srgb_to_linear(self.ambient) * self.ambient_intensity).astype(np.float32)
+
+
+@dataclass(frozen=True, kw_only=True)
+class HairShading:
+    """Kajiya-Kay parameters. diffuse >= 0 scales sin(T, L). primary_* is the white R lobe,
+    secondary_* the colour-tinted TRT lobe: strength >= 0, exponent >= 1, shift in degrees
+    within [-30, 30] (Marschner: R at -5..-10, TRT at 1.5 times that with the opposite sign)."""
+
+    diffuse: float = 0.8
+    primary_strength: float = 0.35
+    primary_exponent: float = 80.0
+    primary_shift: float = -5.0
+    secondary_strength: float = 0.5
+    secondary_exponent: float = 12.0
+    secondary_shift: float = 7.5
+
+    def __post_init__(self):
+        for n in ("diffuse", "primary_strength", "secondary_strength"):
+            if not getattr(self, n) >= 0.0:
+                raise ValueError(f"{n} must be >= 0, got {getattr(self, n)}")
+        for n in ("primary_exponent", "secondary_exponent"):
+            if not getattr(self, n) >= 1.0:
+                raise ValueError(f"{n} must be >= 1, got {getattr(self, n)}")
+        for n in ("primary_shift", "secondary_shift"):
+            if not -30.0 <= getattr(self, n) <= 30.0:
+                raise ValueError(f"{n} must be in [-30, 30] degrees, got {getattr(self, n)}")
+
+    def packed(self) -> np.ndarray:
+        """(8,) float32 for kernels: diffuse, R strength/exponent/shift [rad], TRT ditto, 0."""
+        return np.array([self.diffuse, self.primary_strength, self.primary_exponent,
+                         math.radians(self.primary_shift), self.secondary_strength,
+                         self.secondary_exponent, math.radians(self.secondary_shift), 0.0],
+                        dtype=np.float32)
+
+
+@ti.func
+def lobe(t: vec3f, h: vec3f, shift: f32, exponent: f32) -> f32:
+    """cos(theta_h - shift)^exponent with theta_h = asin(T.H), clamped at 0."""
+    theta_h = ti.asin(ti.math.clamp(t.dot(h), f32(-1.0), f32(1.0)))
+    return ti.pow(ti.max(ti.cos(theta_h - shift), f32(0.0)), exponent)
+
+
+@ti.func
+def kajiya_kay_terms(t: vec3f, l: vec3f, v: vec3f, kk: vec8f) -> vec3f:
+    """(diffuse sin(T, L), primary lobe, secondary lobe), unscaled by strengths."""
+    h = (l + v).normalized(f32(1e-12))
+    sin_tl = ti.sqrt(ti.max(f32(1.0) - t.dot(l) ** 2, f32(0.0)))
+    return vec3f(sin_tl, lobe(t, h, kk[3], kk[2]), lobe(t, h, kk[6], kk[5]))
+
+
+@ti.func
+def shade_hair(t: vec3f, l: vec3f, v: vec3f, albedo: vec3f, light: vec3f, ambient: vec3f,
+               shadow: f32, kk: vec8f) -> vec3f:
+    """Outgoing linear radiance of a fibre with unit tangent t, albedo in [0, 1], key light
+    irradiance `light` attenuated by `shadow` in [0, 1], and unshadowed `ambient`."""
+    k = kajiya_kay_terms(t, l, v, kk)
+    direct = albedo * (kk[0] * k[0]) + kk[1] * k[1] + albedo * (kk[4] * k[2])
+    return albedo * ambient + light * direct * shadow
+
+
+@ti.func
+def shade_surface(n: vec3f, l: vec3f, v: vec3f, albedo: vec3f, light: vec3f, ambient: vec3f,
+                  shadow: f32, specular: f32, shininess: f32) -> vec3f:
+    """Lambert + Blinn, two-sided: n is flipped to face the eye."""
+    nf = n
+    if n.dot(v) < 0.0:
+        nf = -n
+    n_l = nf.dot(l)
+    direct = vec3f(0.0, 0.0, 0.0)
+    if n_l > 0.0:
+        h = (l + v).normalized(f32(1e-12))
+        spec = specular * ti.pow(ti.max(nf.dot(h), f32(0.0)), shininess)
+        direct = light * (albedo * n_l + spec) * shadow
+    return albedo * ambient + direct
+
+
+@ti.kernel
+def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+                        nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
+                        albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
+                        shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
+                        eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, kk: vec8f,
+                        rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+    """rgba[i] = (linear radiance of vertex i, opacity). Tangent from the strand neighbours.
+    Shapes (V,). One thread per vertex."""
+    for i in range(n):
+        t = (x[nbr[i][1]] - x[nbr[i][0]]).normalized(f32(1e-12))
+        v = (eye - x[i]).normalized(f32(1e-12))
+        c = shade_hair(t, to_light, v, albedo[i], light, ambient, shadow[i], kk)
+        rgba[i] = vec4f(c[0], c[1], c[2], opacity)
+
+
+@ti.kernel
+def _kk_terms_kernel(n: ti.i32, t: ti.types.ndarray(dtype=vec3f, ndim=1), l: vec3f, v: vec3f,
+                     kk: vec8f, out: ti.types.ndarray(dtype=vec3f, ndim=1)):
+    for i in range(n):
+        out[i] = kajiya_kay_terms(t[i].normalized(f32(1e-12)), l, v, kk)
+
+
+def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading()) -> dict:
+    """Evaluate the Kajiya-Kay terms in the render kernels' own code, for inspection and tests.
+
+    tangents: (n, 3) directions (normalised here); to_light, to_eye: unit (3,) vectors.
+    Returns float arrays (n,): "diffuse" = sin(T, L), "primary" and "secondary" lobes in [0, 1]
+    (before strengths and colours).
+    """
+    ensure_init()
+    t = np.atleast_2d(np.asarray(tangents, dtype=np.float32))
+    unit = lambda a: (np.asarray(a, float) / np.linalg.norm(a)).astype(np.float32)
+    out = buffer("kk_out", vec3f, (len(t),), 3)
+    _kk_terms_kernel(len(t), upload("kk_t", t, vec3f, 3), unit(to_light), unit(to_eye),
+                     shading.packed(), out)
+    r = out.to_numpy()
+    return {"diffuse": r[:, 0], "primary": r[:, 1], "secondary": r[:, 2]}

@@ -1,0 +1,181 @@
+"""Model (what never changes in a run) and state (what each step changes) of all guide strands.
+
+Arrays are Taichi ndarrays indexed [strand, node] (N = the groom's widest strand) or
+[strand, edge] (N - 1 edges); a strand s uses node_count[s] nodes, the rest is padding.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from . import arrays
+from .frames import update_frames, update_material_frames
+from .groom import Groom
+from .materials import Material, per_strand_materials, stiffness_table
+from .rod import material_curvatures
+
+
+@dataclass(frozen=True)
+class RodModel:
+    """Rest data and constants. Shapes: S strands, N nodes.
+
+    node_count int32 [S]; rest_length [S, N-1] m; voronoi [S, N] m (interior nodes: half the
+    two rest edges; the two end nodes: half their edge); inv_mass [S, N] 1/kg (0 on the clamped
+    root edge's two nodes); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
+    rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
+    rest_twist [S, N] rad; root_tangent, root_reference vec3 [S] (the rest root edge's unit
+    tangent and its Bishop vector u, in head coordinates)."""
+
+    groom: Groom
+    materials: tuple
+    node_count: object
+    rest_length: object
+    voronoi: object
+    inv_mass: object
+    stiffness: object
+    rest_theta: object
+    rest_kappa: object
+    rest_twist: object
+    root_tangent: np.ndarray
+    root_reference: np.ndarray
+
+    @property
+    def n_strands(self) -> int:
+        return self.groom.n_strands
+
+    @property
+    def max_nodes(self) -> int:
+        return self.groom.max_nodes
+
+
+@dataclass
+class RodState:
+    """Per-step state [S, N] / [S, N-1] / [S]: positions x [m], velocities v [m/s], material
+    angles theta [rad], Bishop frames (bishop_u, bishop_v), material frames (m1, m2),
+    curvature binormals kb [1], the head-carried root reference (root_t, root_u), forces [N],
+    and scratch arrays for the twist solve and per-strand reductions."""
+
+    x: object
+    v: object
+    theta: object
+    bishop_u: object
+    bishop_v: object
+    m1: object
+    m2: object
+    kb: object
+    root_t: object
+    root_u: object
+    force: object
+    scratch_edge: tuple  # three [S, N-1] float arrays
+    strand_scalar: object  # [S] float
+    strand_count: object  # [S] int
+
+
+def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
+    s_count, n_max = groom.n_strands, groom.max_nodes
+    rest_length = np.zeros((s_count, n_max - 1))
+    voronoi = np.ones((s_count, n_max))
+    inv_mass = np.zeros((s_count, n_max))
+    for s in range(s_count):
+        n = groom.node_counts[s]
+        lengths = np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1)
+        rest_length[s, : n - 1] = lengths
+        vor = np.zeros(n)
+        vor[:-1] += 0.5 * lengths
+        vor[1:] += 0.5 * lengths
+        voronoi[s, :n] = vor
+        inv_mass[s, 2:n] = 1.0 / (linear_density[s] * vor[2:])
+    return rest_length, voronoi, inv_mass
+
+
+def perpendicular_unit(t: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to each unit row of t [S, 3] (deterministic)."""
+    helper = np.where(np.abs(t[:, [2]]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = helper - np.sum(helper * t, axis=1)[:, None] * t
+    return u / np.linalg.norm(u, axis=1)[:, None]
+
+
+def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodState:
+    s_count, n_max = groom.n_strands, groom.max_nodes
+    edges = (s_count, n_max - 1)
+    return RodState(
+        x=arrays.vectors(3, (s_count, n_max), groom.positions),
+        v=arrays.vectors(3, (s_count, n_max)),
+        theta=arrays.scalars(edges),
+        bishop_u=arrays.vectors(3, edges), bishop_v=arrays.vectors(3, edges),
+        m1=arrays.vectors(3, edges), m2=arrays.vectors(3, edges),
+        kb=arrays.vectors(3, (s_count, n_max)),
+        root_t=arrays.vectors(3, (s_count,), root_t), root_u=arrays.vectors(3, (s_count,), root_u),
+        force=arrays.vectors(3, (s_count, n_max)),
+        scratch_edge=tuple(arrays.scalars(edges) for _ in range(3)),
+        strand_scalar=arrays.scalars((s_count,)),
+        strand_count=arrays.ints((s_count,), 0),
+    )
+
+
+def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarray,
+                       node_counts: np.ndarray) -> np.ndarray:
+    """Rest angles [S, N-1] putting m1 (the major axis) along the curvature binormals, as Kmoch's
+    rule does, continuous along the strand (each edge takes the branch nearest its predecessor);
+    straight stretches inherit the angle of the curved part next to them."""
+    s_count, n_edges = bishop_u.shape[:2]
+    theta = np.full((s_count, n_edges), np.nan)
+    prev = np.full(s_count, np.nan)
+    for j in range(n_edges):
+        doubled = np.zeros((s_count, 2))
+        for node in (j, j + 1):
+            interior = (node >= 1) & (node <= node_counts - 2)
+            ku = np.sum(kb[:, node] * bishop_u[:, j], axis=1) * interior
+            kv = np.sum(kb[:, node] * bishop_v[:, j], axis=1) * interior
+            doubled += np.stack([ku * ku - kv * kv, 2 * ku * kv], axis=1)
+        curved = np.linalg.norm(doubled, axis=1) > 1e-12
+        eta = 0.5 * np.arctan2(doubled[:, 1], doubled[:, 0])
+        branch = np.where(np.isnan(prev), eta, eta + np.pi * np.round((np.nan_to_num(prev) - eta) / np.pi))
+        theta[:, j] = np.where(curved, branch, prev)
+        prev = theta[:, j]
+    for s in range(s_count):  # fill the leading straight part backwards, and all-straight strands
+        row = theta[s]
+        known = np.flatnonzero(~np.isnan(row))
+        row[: known[0] if len(known) else n_edges] = row[known[0]] if len(known) else 0.0
+    return theta
+
+
+def build(groom: Groom, material) -> tuple[RodModel, RodState]:
+    """Model and state for `groom` with `material` (one Material or one per strand), the state
+    at the rest shape with rest material frames. Rest curvatures and twists are measured on the
+    rest shape with the same kernels the simulation uses, so the rest shape has zero energy."""
+    materials = per_strand_materials(material, groom.n_strands)
+    table = stiffness_table(materials)
+    rest_length, voronoi, inv_mass = _voronoi_and_mass(groom, table["linear_density"])
+    root_t = groom.positions[:, 1] - groom.positions[:, 0]
+    root_t /= np.linalg.norm(root_t, axis=1)[:, None]
+    root_u = perpendicular_unit(root_t)
+    state = allocate_state(groom, root_t, root_u)
+    node_count = arrays.ints((groom.n_strands,), groom.node_counts)
+    update_frames(state.x, node_count, state.root_t, state.root_u, state.theta, state.bishop_u,
+                  state.bishop_v, state.m1, state.m2, state.kb)
+    elliptic = np.array([m.ellipticity > 1.0 for m in materials])
+    rest_theta = np.zeros((groom.n_strands, groom.max_nodes - 1))
+    if elliptic.any():
+        aligned = align_to_curvature(state.kb.to_numpy(), state.bishop_u.to_numpy(),
+                                     state.bishop_v.to_numpy(), groom.node_counts)
+        rest_theta[elliptic] = aligned[elliptic]
+    state.theta.from_numpy(rest_theta.astype(arrays.np_float()))
+    update_material_frames(node_count, state.theta, state.bishop_u, state.bishop_v, state.m1, state.m2)
+    rest_kappa = arrays.vectors(4, (groom.n_strands, groom.max_nodes))
+    material_curvatures(node_count, state.kb, state.m1, state.m2, rest_kappa)
+    rest_twist = np.zeros((groom.n_strands, groom.max_nodes))
+    rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
+    stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["linear_density"]], axis=1)
+    model = RodModel(
+        groom=groom, materials=tuple(materials), node_count=node_count,
+        rest_length=arrays.scalars(rest_length.shape, rest_length),
+        voronoi=arrays.scalars(voronoi.shape, voronoi),
+        inv_mass=arrays.scalars(inv_mass.shape, inv_mass),
+        stiffness=arrays.vectors(4, (groom.n_strands,), stiffness),
+        rest_theta=arrays.scalars(rest_theta.shape, rest_theta),
+        rest_kappa=rest_kappa, rest_twist=arrays.scalars(rest_twist.shape, rest_twist),
+        root_tangent=root_t, root_reference=root_u,
+    )
+    return model, state
