@@ -1,1 +1,18 @@
-"""Offscreen hair rasteriser: polylines and meshes in, images and videos out. No physics."""
+"""Offscreen hair rasteriser: polylines and meshes in, images and videos out. No physics.
+
+Numpy arrays in, `(H, W, 3) uint8` sRGB images out. Rendering runs in Taichi kernels on
+whatever arch Taichi was initialised with; if nobody initialised it, the first render calls
+`render.init()` (CPU). See render/README.md.
+"""
+
+from .camera import Camera
+from .frame import RenderSettings, hair_shadow, render_buffers, render_frame
+from .geometry import Hair, Mesh
+from .runtime import init
+from .shading import HairShading, Light, Lighting, kajiya_kay
+from .shadows import ShadowSettings
+
+__all__ = [
+    "Camera", "Hair", "HairShading", "Light", "Lighting", "Mesh", "RenderSettings",
+    "ShadowSettings", "hair_shadow", "init", "kajiya_kay", "render_buffers", "render_frame",
+]

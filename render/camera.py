@@ -7,7 +7,7 @@ in metres along the view axis, and `inv_w` the weight that makes screen-space in
 perspective-correct (1/depth for perspective, 1 for orthographic).
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import taichi as ti
@@ -113,7 +113,7 @@ class Camera:
         return replace(self, eye=tuple(np.array(self.target) + r))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class OrthoView:
     """Orthographic view along a direction, fitted to a bounding sphere; used for the key light.
 
@@ -125,7 +125,6 @@ class OrthoView:
     centre: np.ndarray
     radius: float
     resolution: int
-    _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """(view (4, 4) float32, proj (4,) float32); depths run from ~0.05 r to ~2.05 r."""
@@ -156,14 +155,14 @@ def project(view: mat4f, proj: vec4f, p: vec3f) -> vec4f:
 
 
 @ti.kernel
-def project_vertices(x: ti.types.ndarray(dtype=vec3f, ndim=1),
+def project_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                      width: ti.types.ndarray(dtype=f32, ndim=1),
                      view: mat4f, proj: vec4f,
                      screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                      width_px: ti.types.ndarray(dtype=f32, ndim=1)):
     """screen[i] = project(x[i]); width_px[i] = width[i] [m] in pixels at x[i]'s depth.
-    Shapes (V,). One thread per vertex."""
-    for i in x:
+    Shapes (V,), the first n used. One thread per vertex."""
+    for i in range(n):
         s = project(view, proj, x[i])
         screen[i] = s
         width_px[i] = width[i] * proj[0] * s[3]

@@ -18,9 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from .camera import f32, vec3f, vec4f
+from .camera import f32, mat4f, vec3f, vec4f
 from .geometry import _colour, srgb_to_linear
-from .runtime import ensure_init, upload, buffer
+from .raster import barycentric, empty_key, key_prim, perspective_weights, vec2f, vec3i
+from .runtime import buffer, ensure_init, upload
+from .shadows import transmittance
 
 vec8f = ti.types.vector(8, ti.f32)
 
@@ -179,3 +181,42 @@ def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading())
                      shading.packed(), out)
     r = out.to_numpy()
     return {"diffuse": r[:, 0], "primary": r[:, 1], "secondary": r[:, 2]}
+
+
+@ti.kernel
+def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+               screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+               faces: ti.types.ndarray(dtype=vec3i, ndim=1),
+               x: ti.types.ndarray(dtype=vec3f, ndim=1),
+               normal: ti.types.ndarray(dtype=vec3f, ndim=1),
+               albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
+               material: ti.types.ndarray(dtype=ti.types.vector(2, ti.f32), ndim=1),
+               eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, background: vec3f,
+               sview: mat4f, sproj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
+               opacity: ti.types.ndarray(dtype=f32, ndim=3),
+               bounds: ti.types.ndarray(dtype=f32, ndim=1),
+               smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f,
+               base: ti.types.ndarray(dtype=vec3f, ndim=2)):
+    """base (H, W) = linear radiance of the visible mesh surface, or the background. Position,
+    normal and colour are interpolated perspective-correctly from the face in mesh_key; the
+    shadow lookup is offset along the normal by two shadow texels against self-shadow acne.
+    One thread per pixel."""
+    for py, px in base:
+        key = mesh_key[py, px]
+        c = background
+        if key != empty_key():
+            f = key_prim(key)
+            ia, ib, ic = faces[f][0], faces[f][1], faces[f][2]
+            p2 = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+            w = barycentric(screen[ia], screen[ib], screen[ic], p2)
+            q = perspective_weights(screen[ia], screen[ib], screen[ic], w)
+            p = q[0] * x[ia] + q[1] * x[ib] + q[2] * x[ic]
+            n = (q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic]).normalized(f32(1e-12))
+            v = (eye - p).normalized(f32(1e-12))
+            n_eye = ti.select(n.dot(v) < 0.0, -n, n)
+            shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
+                                   opacity, bounds, smesh_key, sparams)
+            col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
+            c = shade_surface(n, to_light, v, col, light, ambient, shadow,
+                              material[f][0], material[f][1])
+        base[py, px] = c

@@ -1,0 +1,178 @@
+"""One frame: upload the scene, shadow maps, rasterise, shade, composite, encode.
+
+The stages, in order (each a kernel or two from camera, shadows, shading and raster):
+  1. light maps: hair opacity slabs and mesh depth from the key light (`shadows`);
+  2. meshes: project, depth-test triangles, shade visible surfaces per pixel (Lambert + Blinn,
+     shadowed) over the background;
+  3. hair: project, look up each vertex's shadow, shade vertices (Kajiya-Kay), insert segment
+     fragments in front of the meshes into the k-buffer / tail;
+  4. composite hair over meshes per pixel; box-filter supersamples; encode 8-bit sRGB.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from .camera import Camera, f32, project_vertices, vec3f, vec4f
+from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
+from .raster import clear_frame, composite, finish, raster_hair, raster_triangles, vec3i
+from .runtime import buffer, ensure_init, upload
+from .shading import HairShading, Lighting, shade_hair_vertices, shade_mesh
+from .shadows import ShadowSettings, build_shadow_map, points_transmittance
+
+vec2f = ti.types.vector(2, ti.f32)
+vec2i = ti.types.vector(2, ti.i32)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RenderSettings:
+    """supersample: render at s x s samples per pixel and box-filter down, s in [1, 4]; hair is
+    anti-aliased by coverage already, this smooths mesh silhouettes. layers: hair fragments kept
+    exactly sorted per pixel (the k-buffer's K), in [1, 16]; the rest are blended unordered
+    behind them. shadows, hair_shading: see their classes."""
+
+    supersample: int = 1
+    layers: int = 4
+    shadows: ShadowSettings = ShadowSettings()
+    hair_shading: HairShading = HairShading()
+
+    def __post_init__(self):
+        if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
+            raise ValueError(f"supersample must be an integer in [1, 4], got {self.supersample}")
+        if not (int(self.layers) == self.layers and 1 <= self.layers <= 16):
+            raise ValueError(f"layers must be an integer in [1, 16], got {self.layers}")
+        if not isinstance(self.shadows, ShadowSettings):
+            raise ValueError(f"shadows must be a ShadowSettings, got {type(self.shadows).__name__}")
+        if not isinstance(self.hair_shading, HairShading):
+            raise ValueError(f"hair_shading must be a HairShading, got {type(self.hair_shading).__name__}")
+
+
+def _padded(a: np.ndarray) -> np.ndarray:
+    """Taichi ndarrays cannot be empty: give empty inputs one unused zero row."""
+    return a if len(a) else np.zeros((1, *a.shape[1:]), dtype=a.dtype)
+
+
+def _upload_hair(hair: Hair | None) -> dict:
+    if hair is None:
+        x, w = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        seg, nbr, col, opacity = np.zeros(0, np.int32), np.zeros((0, 2), np.int32), x, 1.0
+    else:
+        x, w, seg, nbr = hair.vertices, hair.vertex_widths, hair.segments, hair.neighbours
+        col, opacity = hair.vertex_colours, hair.opacity
+    nv = max(len(x), 1)
+    return dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
+                seg=upload("hair_seg", _padded(seg), ti.i32),
+                nbr=upload("hair_nbr", _padded(nbr), vec2i, 2),
+                colour=upload("hair_colour", _padded(col), vec3f, 3),
+                width_px=buffer("hair_width_px", f32, (nv,)),
+                screen=buffer("hair_screen", vec4f, (nv,), 4),
+                shadow=buffer("hair_shadow", f32, (nv,)),
+                rgba=buffer("hair_rgba", vec4f, (nv,), 4),
+                n_vertices=len(x), n_segments=len(seg), host_x=x, opacity=float(opacity))
+
+
+def _upload_meshes(meshes) -> dict:
+    m = merge_meshes(meshes)
+    nv = max(len(m["x"]), 1)
+    return dict(x=upload("mesh_x", _padded(m["x"]), vec3f, 3),
+                normal=upload("mesh_n", _padded(m["normal"]), vec3f, 3),
+                colour=upload("mesh_colour", _padded(m["colour"]), vec3f, 3),
+                faces=upload("mesh_faces", _padded(m["faces"]), vec3i, 3),
+                material=upload("mesh_material", _padded(m["material"]), vec2f, 2),
+                width=upload("mesh_w", np.zeros(nv, np.float32), f32),
+                width_px=buffer("mesh_width_px", f32, (nv,)),
+                screen=buffer("mesh_screen", vec4f, (nv,), 4),
+                n_vertices=len(m["x"]), n_faces=len(m["faces"]), host_x=m["x"])
+
+
+def _check(camera, hair, meshes, lighting, settings):
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera must be a render.Camera, got {type(camera).__name__}")
+    if hair is not None and not isinstance(hair, Hair):
+        raise ValueError(f"hair must be a render.Hair or None, got {type(hair).__name__}")
+    if isinstance(meshes, Mesh) or not all(isinstance(m, Mesh) for m in meshes):
+        raise ValueError("meshes must be a sequence of render.Mesh")
+    if not isinstance(lighting, Lighting):
+        raise ValueError(f"lighting must be a render.Lighting, got {type(lighting).__name__}")
+    if not isinstance(settings, RenderSettings):
+        raise ValueError(f"settings must be a RenderSettings, got {type(settings).__name__}")
+
+
+def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(),
+                   lighting: Lighting = Lighting(), background=(0.82, 0.82, 0.84),
+                   settings: RenderSettings = RenderSettings()) -> dict:
+    """Render one frame and return its buffers at the camera's resolution (H, W):
+    "image" (H, W, 3) uint8 sRGB, "rgb" (H, W, 3) float32 linear radiance, "alpha" (H, W)
+    float32 hair opacity (0 where no hair, ~ fibre width in pixels summed over a column).
+    background: sRGB colour in [0, 1] behind everything."""
+    _check(camera, hair, meshes, lighting, settings)
+    bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
+    ensure_init()
+    meshes = list(meshes)
+    s = settings.supersample
+    height, width = camera.height * s, camera.width * s
+    hd, md = _upload_hair(hair), _upload_meshes(meshes)
+    smap = build_shadow_map(settings.shadows, lighting.key.to_light,
+                            hd if hd["n_vertices"] else None, md if md["n_faces"] else None)
+    view, proj = camera.matrices(s)
+    near = np.float32(camera.near)
+    eye = np.asarray(camera.eye, np.float32)
+    to_light = np.asarray(lighting.key.to_light, np.float32)
+    light, ambient = lighting.key.radiance(), lighting.ambient_radiance()
+
+    mesh_key = buffer("mesh_key", ti.i64, (height, width))
+    kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
+    tail = buffer("tail", vec4f, (height, width), 4)
+    tail_log = buffer("tail_log", f32, (height, width))
+    base = buffer("base", vec3f, (height, width), 3)
+    clear_frame(mesh_key, kbuf, tail, tail_log)
+
+    project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
+                     md["width_px"])
+    raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
+    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
+                   smap.params)
+    shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
+               md["material"], eye, to_light, light, ambient, bg, *shadow_args, base)
+
+    project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
+                     hd["width_px"])
+    points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
+    shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
+                        hd["opacity"], eye, to_light, light, ambient,
+                        settings.hair_shading.packed(), hd["rgba"])
+    raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
+                mesh_key, kbuf, tail, tail_log)
+
+    rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
+    alpha_s = buffer("alpha_s", f32, (height, width))
+    composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, tail_log, base,
+              rgb_s, alpha_s)
+    out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
+    out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
+    image = buffer("image", ti.u8, (camera.height, camera.width, 3))
+    finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
+    return {"image": image.to_numpy(), "rgb": out_rgb.to_numpy(), "alpha": out_alpha.to_numpy()}
+
+
+def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(),
+                 lighting: Lighting = Lighting(), background=(0.82, 0.82, 0.84),
+                 settings: RenderSettings = RenderSettings()) -> np.ndarray:
+    """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`."""
+    return render_buffers(camera, hair=hair, meshes=meshes, lighting=lighting,
+                          background=background, settings=settings)["image"]
+
+
+def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
+                shadows: ShadowSettings = ShadowSettings()) -> np.ndarray:
+    """Fraction of the key light reaching each hair vertex, (V,) float32 in [0, 1], in the
+    order of `Hair.vertices`: the shadow term the renderer multiplies direct light by."""
+    if not isinstance(hair, Hair):
+        raise ValueError(f"hair must be a render.Hair, got {type(hair).__name__}")
+    ensure_init()
+    hd, md = _upload_hair(hair), _upload_meshes(list(meshes))
+    smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
+    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
+                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, hd["shadow"])
+    return hd["shadow"].to_numpy()[: hd["n_vertices"]]

@@ -1,0 +1,279 @@
+"""Rasterisation kernels: triangles into a depth buffer, hair segments into a k-buffer, and the
+per-pixel compositing of both.
+
+Depth keys. A fragment is the 64-bit key `float32 bits of depth << 32 | primitive id`; for
+positive depths the integer order is the depth order, so `atomic_min` keeps the nearest
+fragment and its primitive, race-free, on CPU and GPU alike. Colours are recomputed from the
+primitive id when a pixel is resolved, so the buffers hold keys only.
+
+Hair transparency. Each pixel keeps its K nearest hair fragments exactly (a k-buffer filled by
+a chain of `atomic_min`: inserting swaps the key with each slot's larger value, so the slots
+stay sorted and a key pushed out of the last slot is never among the K nearest). Fragments
+pushed out are blended order-independently into a "tail" layer (alpha-weighted mean colour,
+opacity 1 - prod(1 - alpha)) behind the K sorted ones: the nearer strand always wins at a
+crossing, and dense hair far behind still darkens and tints the pixel.
+
+Anti-aliasing. A fibre of width w pixels covers a pixel by the overlap of the fibre's
+cross-section [d - w/2, d + w/2] with the pixel's [-1/2, 1/2], d the distance from the pixel
+centre to the centre line: box-filtered coverage, so a column sums to w for a horizontal fibre
+of any width, sub-pixel fibres included. Along the fibre, each pixel centre belongs to the one
+segment it projects into (t in [0, 1)), so joints of a straight polyline are not counted twice.
+"""
+
+import taichi as ti
+
+from .camera import f32, vec3f, vec4f
+
+vec2f = ti.types.vector(2, ti.f32)
+vec3i = ti.types.vector(3, ti.i32)
+u8 = ti.u8
+
+
+@ti.func
+def empty_key() -> ti.i64:
+    """Key of an empty slot: depth +inf, beyond every fragment."""
+    return ti.cast(0x7F800000, ti.i64) << 32
+
+
+@ti.func
+def pack(depth: f32, prim: ti.i32) -> ti.i64:
+    return (ti.cast(ti.bit_cast(depth, ti.i32), ti.i64) << 32) | ti.cast(prim, ti.i64)
+
+
+@ti.func
+def key_prim(key: ti.i64) -> ti.i32:
+    return ti.cast(key - ((key >> 32) << 32), ti.i32)
+
+
+@ti.func
+def key_depth(key: ti.i64) -> f32:
+    return ti.bit_cast(ti.cast(key >> 32, ti.i32), f32)
+
+
+@ti.kernel
+def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
+                tail: ti.types.ndarray(dtype=vec4f, ndim=2),
+                tail_log: ti.types.ndarray(dtype=f32, ndim=2)):
+    """Empty the depth buffer (H, W), k-buffer (H, W, K) and tail accumulators (H, W)."""
+    for i, j in mesh_key:
+        mesh_key[i, j] = empty_key()
+        for k in range(kbuf.shape[2]):
+            kbuf[i, j, k] = empty_key()
+        tail[i, j] = vec4f(0.0, 0.0, 0.0, 0.0)
+        tail_log[i, j] = 0.0
+
+
+@ti.kernel
+def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    for i, j in key:
+        key[i, j] = empty_key()
+
+
+@ti.func
+def edge(a: vec2f, b: vec2f, p: vec2f) -> f32:
+    """Twice the signed area of (a, b, p)."""
+    return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+
+
+@ti.func
+def barycentric(a: vec4f, b: vec4f, c: vec4f, p: vec2f) -> vec3f:
+    """Screen-space barycentric weights of p in triangle (a, b, c); area must be non-zero."""
+    a2, b2, c2 = vec2f(a[0], a[1]), vec2f(b[0], b[1]), vec2f(c[0], c[1])
+    area = edge(a2, b2, c2)
+    w0 = edge(b2, c2, p) / area
+    w1 = edge(c2, a2, p) / area
+    return vec3f(w0, w1, f32(1.0) - w0 - w1)
+
+
+@ti.func
+def perspective_weights(a: vec4f, b: vec4f, c: vec4f, w: vec3f) -> vec3f:
+    """Screen barycentrics -> weights for interpolating world-space attributes."""
+    q = vec3f(w[0] * a[3], w[1] * b[3], w[2] * c[3])
+    return q / (q[0] + q[1] + q[2])
+
+
+@ti.kernel
+def raster_triangles(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                     faces: ti.types.ndarray(dtype=vec3i, ndim=1), near: f32,
+                     key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """Depth-test n triangles into key (H, W): nearest (depth, face) per pixel centre.
+    screen (V,) from `camera.project_vertices`. One thread per triangle."""
+    height, width = key.shape[0], key.shape[1]
+    for f in range(n):
+        a, b, c = screen[faces[f][0]], screen[faces[f][1]], screen[faces[f][2]]
+        area = edge(vec2f(a[0], a[1]), vec2f(b[0], b[1]), vec2f(c[0], c[1]))
+        if ti.min(a[2], b[2], c[2]) > near and ti.abs(area) > 1e-12:
+            x0 = ti.max(ti.cast(ti.ceil(ti.min(a[0], b[0], c[0]) - 0.5), ti.i32), 0)
+            x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0], c[0]) - 0.5), ti.i32), width - 1)
+            y0 = ti.max(ti.cast(ti.ceil(ti.min(a[1], b[1], c[1]) - 0.5), ti.i32), 0)
+            y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1], c[1]) - 0.5), ti.i32), height - 1)
+            for py in range(y0, y1 + 1):
+                for px in range(x0, x1 + 1):
+                    p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+                    w = barycentric(a, b, c, p)
+                    if w[0] >= 0.0 and w[1] >= 0.0 and w[2] >= 0.0:
+                        q = perspective_weights(a, b, c, w)
+                        depth = q[0] * a[2] + q[1] * b[2] + q[2] * c[2]
+                        ti.atomic_min(key[py, px], pack(depth, f))
+
+
+@ti.func
+def coverage(p: vec2f, a: vec4f, b: vec4f, wa: f32, wb: f32) -> vec2f:
+    """(coverage in [0, 1], t) of the pixel centred at p by the fibre from a to b with widths
+    wa, wb [pixels]; t in [0, 1) is where p projects onto the segment (coverage 0 outside)."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    l2 = dx * dx + dy * dy
+    cov, t = f32(0.0), f32(0.0)
+    if l2 > 1e-12:
+        t = ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2
+        if t >= 0.0 and t < 1.0:
+            d = ti.sqrt((a[0] + t * dx - p[0]) ** 2 + (a[1] + t * dy - p[1]) ** 2)
+            half = f32(0.5) * (wa + t * (wb - wa))
+            cov = ti.math.clamp(ti.min(d + half, f32(0.5)) - ti.max(d - half, f32(-0.5)),
+                                f32(0.0), f32(1.0))
+    return vec2f(cov, t)
+
+
+@ti.func
+def fragment(e: ti.i32, px: ti.i32, py: ti.i32, seg: ti.template(), screen: ti.template(),
+             width_px: ti.template(), rgba: ti.template()) -> vec4f:
+    """(linear rgb, alpha) of hair segment e at pixel (px, py)."""
+    i = seg[e]
+    p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+    cv = coverage(p, screen[i], screen[i + 1], width_px[i], width_px[i + 1])
+    c = rgba[i] * (f32(1.0) - cv[1]) + rgba[i + 1] * cv[1]
+    return vec4f(c[0], c[1], c[2], cv[0] * c[3])
+
+
+@ti.func
+def insert(kbuf: ti.template(), py: ti.i32, px: ti.i32, key: ti.i64) -> ti.i64:
+    """Insert key into the pixel's sorted k-buffer; returns the key pushed out (or empty)."""
+    v = key
+    k = 0
+    while k < kbuf.shape[2] and v != empty_key():
+        old = ti.atomic_min(kbuf[py, px, k], v)
+        v = ti.max(old, v)
+        k += 1
+    return v
+
+
+@ti.func
+def blend_tail(e: ti.i32, px: ti.i32, py: ti.i32, seg: ti.template(), screen: ti.template(),
+               width_px: ti.template(), rgba: ti.template(), tail: ti.template(),
+               tail_log: ti.template()):
+    f = fragment(e, px, py, seg, screen, width_px, rgba)
+    a = ti.min(f[3], f32(0.999))
+    tail[py, px] += vec4f(f[0] * a, f[1] * a, f[2] * a, a)
+    tail_log[py, px] += ti.log(f32(1.0) - a)
+
+
+@ti.kernel
+def raster_hair(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                width_px: ti.types.ndarray(dtype=f32, ndim=1),
+                rgba: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32,
+                mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
+                tail: ti.types.ndarray(dtype=vec4f, ndim=2),
+                tail_log: ti.types.ndarray(dtype=f32, ndim=2)):
+    """Insert the fragments of n hair segments (seg[e] -> seg[e] + 1) in front of the meshes
+    into the k-buffer (H, W, K); fragments pushed out go to the tail. One thread per segment,
+    walking the pixels near the segment column by column along its major axis."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    for e in range(n):
+        i = seg[e]
+        a, b = screen[i], screen[i + 1]
+        if ti.min(a[2], b[2]) > near:
+            xmajor = ti.abs(b[0] - a[0]) >= ti.abs(b[1] - a[1])
+            am, an = ti.select(xmajor, a[0], a[1]), ti.select(xmajor, a[1], a[0])
+            bm, bn = ti.select(xmajor, b[0], b[1]), ti.select(xmajor, b[1], b[0])
+            size_m, size_n = ti.select(xmajor, width, height), ti.select(xmajor, height, width)
+            dm, dn = bm - am, bn - an
+            length = ti.sqrt(dm * dm + dn * dn)
+            if length > 1e-6:
+                # pixel centres with non-zero coverage lie within `reach` of the centre line
+                reach = f32(0.5) * ti.max(width_px[i], width_px[i + 1]) + f32(0.5)
+                ext_m = reach * ti.abs(dn) / length
+                ext_n = reach * length / ti.abs(dm)
+                m0 = ti.max(ti.cast(ti.ceil(ti.min(am, bm) - ext_m - 0.5), ti.i32), 0)
+                m1 = ti.min(ti.cast(ti.floor(ti.max(am, bm) + ext_m - 0.5), ti.i32), size_m - 1)
+                for m in range(m0, m1 + 1):
+                    centre = an + (ti.cast(m, f32) + f32(0.5) - am) * dn / dm
+                    n0 = ti.max(ti.cast(ti.ceil(centre - ext_n - 0.5), ti.i32), 0)
+                    n1 = ti.min(ti.cast(ti.floor(centre + ext_n - 0.5), ti.i32), size_n - 1)
+                    for q in range(n0, n1 + 1):
+                        px, py = ti.select(xmajor, m, q), ti.select(xmajor, q, m)
+                        p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+                        cv = coverage(p, a, b, width_px[i], width_px[i + 1])
+                        if cv[0] > 0.0:
+                            t = cv[1]
+                            inv_w = a[3] + t * (b[3] - a[3])
+                            depth = (a[2] * a[3] + t * (b[2] * b[3] - a[2] * a[3])) / inv_w
+                            key = pack(depth, e)
+                            if (key >> 32) < (mesh_key[py, px] >> 32):
+                                out = insert(kbuf, py, px, key)
+                                if out != empty_key():
+                                    blend_tail(key_prim(out), px, py, seg, screen, width_px,
+                                               rgba, tail, tail_log)
+
+
+@ti.kernel
+def composite(seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+              screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+              width_px: ti.types.ndarray(dtype=f32, ndim=1),
+              rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
+              kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
+              tail: ti.types.ndarray(dtype=vec4f, ndim=2),
+              tail_log: ti.types.ndarray(dtype=f32, ndim=2),
+              base: ti.types.ndarray(dtype=vec3f, ndim=2),
+              out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
+              out_alpha: ti.types.ndarray(dtype=f32, ndim=2)):
+    """Per pixel: the K sorted hair fragments front to back, then the tail, over `base` (the
+    shaded mesh or background). out_rgb linear radiance, out_alpha hair opacity, (H, W)."""
+    for py, px in base:
+        c = vec3f(0.0, 0.0, 0.0)
+        trans = f32(1.0)
+        k = 0
+        while k < kbuf.shape[2] and kbuf[py, px, k] != empty_key():
+            f = fragment(key_prim(kbuf[py, px, k]), px, py, seg, screen, width_px, rgba)
+            c += trans * f[3] * vec3f(f[0], f[1], f[2])
+            trans *= f32(1.0) - f[3]
+            k += 1
+        tl = tail[py, px]
+        if tl[3] > 0.0:
+            a = f32(1.0) - ti.exp(tail_log[py, px])
+            c += trans * a * vec3f(tl[0], tl[1], tl[2]) / tl[3]
+            trans *= f32(1.0) - a
+        out_rgb[py, px] = c + trans * base[py, px]
+        out_alpha[py, px] = f32(1.0) - trans
+
+
+@ti.func
+def encode_srgb(linear: f32) -> ti.u8:
+    c = ti.math.clamp(linear, f32(0.0), f32(1.0))
+    s = f32(12.92) * c
+    if c > 0.0031308:
+        s = f32(1.055) * ti.pow(c, f32(1.0 / 2.4)) - f32(0.055)
+    return ti.cast(s * f32(255.0) + f32(0.5), ti.u8)
+
+
+@ti.kernel
+def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
+           alpha: ti.types.ndarray(dtype=f32, ndim=2),
+           out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
+           out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
+           image: ti.types.ndarray(dtype=u8, ndim=3)):
+    """Box-filter scale x scale blocks of the supersampled rgb/alpha (H*s, W*s) down to
+    (H, W), and encode the image (H, W, 3) as 8-bit sRGB. One thread per output pixel."""
+    for py, px in out_alpha:
+        c = vec3f(0.0, 0.0, 0.0)
+        a = f32(0.0)
+        for dy, dx in ti.ndrange(scale, scale):
+            c += rgb[py * scale + dy, px * scale + dx]
+            a += alpha[py * scale + dy, px * scale + dx]
+        norm = f32(1.0) / ti.cast(scale * scale, f32)
+        out_rgb[py, px] = c * norm
+        out_alpha[py, px] = a * norm
+        for ch in ti.static(range(3)):
+            image[py, px, ch] = encode_srgb(c[ch] * norm)

@@ -1,0 +1,254 @@
+"""Self-shadowing from the key light: a deep opacity map (Yuksel & Keyser 2008) for hair and a
+depth map for meshes, both in an orthographic view along the light fitted to the scene.
+
+Hair is splatted from the light twice. Pass one keeps, per texel, the depth z0 of the hair
+nearest the light. Pass two adds each fibre sample's opacity into the depth slab that holds it,
+slabs starting at z0 and growing geometrically (thin where the outer hair is, thick inside).
+A prefix sum over slabs gives the opacity accumulated in front of any depth; light reaching a
+point is T = exp(-density * opacity), times the fraction of the 2x2 texels where no mesh lies
+nearer the light. Each fibre sample carries the fraction of a texel's area its width covers,
+so the opacity of a fixed amount of hair does not depend on the map's resolution.
+"""
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import taichi as ti
+
+from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
+from .raster import clear_keys_2d, key_depth, raster_triangles
+from .runtime import buffer, upload
+
+
+@dataclass(frozen=True, kw_only=True)
+class ShadowSettings:
+    """enabled: cast shadows from the key light. resolution: side of the light's maps in texels,
+    in [16, 8192]. layers: opacity slabs per texel, in [1, 32]. first_layer: thickness of the
+    first slab as a fraction of the scene's diameter, in (0, 1]; each next slab is `growth`
+    (>= 1) times thicker. density >= 0: scales hair opacity in shadows (lower for light hair,
+    which transmits more). mesh_shadows: meshes occlude the light too (for hair and themselves).
+    """
+
+    enabled: bool = True
+    resolution: int = 512
+    layers: int = 8
+    first_layer: float = 1.0 / 256.0
+    growth: float = 2.0
+    density: float = 1.0
+    mesh_shadows: bool = True
+
+    def __post_init__(self):
+        if not (int(self.resolution) == self.resolution and 16 <= self.resolution <= 8192):
+            raise ValueError(f"resolution must be an integer in [16, 8192] texels, got {self.resolution}")
+        if not (int(self.layers) == self.layers and 1 <= self.layers <= 32):
+            raise ValueError(f"layers must be an integer in [1, 32], got {self.layers}")
+        if not 0.0 < self.first_layer <= 1.0:
+            raise ValueError(f"first_layer must be in (0, 1] of the scene diameter, got {self.first_layer}")
+        if not self.growth >= 1.0:
+            raise ValueError(f"growth must be >= 1, got {self.growth}")
+        if not self.density >= 0.0:
+            raise ValueError(f"density must be >= 0, got {self.density}")
+
+    def bounds(self, diameter: float) -> np.ndarray:
+        """Slab boundaries [m] behind the first hair, (layers + 1,) float32, from 0."""
+        thickness = self.first_layer * diameter * self.growth ** np.arange(self.layers)
+        return np.concatenate([[0.0], np.cumsum(thickness)]).astype(np.float32)
+
+
+class ShadowMap(NamedTuple):
+    """Device data for `transmittance`: the light's view/proj, z0 (R, R) [m], cumulative
+    opacity (R, R, L), slab bounds (L + 1,) [m], mesh depth keys (R, R), and
+    params = (enabled, density, depth bias [m], texel size [m])."""
+
+    view: np.ndarray
+    proj: np.ndarray
+    z0: ti.Ndarray
+    opacity: ti.Ndarray
+    bounds: ti.Ndarray
+    mesh_key: ti.Ndarray
+    params: np.ndarray
+
+
+@ti.kernel
+def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
+                 opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+    for i, j in z0:
+        z0[i, j] = 3.0e38
+        for k in range(opacity.shape[2]):
+            opacity[i, j, k] = 0.0
+
+
+@ti.func
+def bilinear(p: vec4f, size: ti.i32):
+    """Lower-left texel (i, j) and weights (fx, fy) of the 2x2 block around screen point p."""
+    u, v = p[0] - f32(0.5), p[1] - f32(0.5)
+    i, j = ti.cast(ti.floor(u), ti.i32), ti.cast(ti.floor(v), ti.i32)
+    i = ti.math.clamp(i, 0, size - 2)
+    j = ti.math.clamp(j, 0, size - 2)
+    fx = ti.math.clamp(u - ti.cast(i, f32), f32(0.0), f32(1.0))
+    fy = ti.math.clamp(v - ti.cast(j, f32), f32(0.0), f32(1.0))
+    return i, j, fx, fy
+
+
+@ti.func
+def corner_weight(fx: f32, fy: f32, dx: ti.i32, dy: ti.i32) -> f32:
+    wx = ti.select(dx == 0, f32(1.0) - fx, fx)
+    wy = ti.select(dy == 0, f32(1.0) - fy, fy)
+    return wx * wy
+
+
+@ti.kernel
+def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                     screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                     z0: ti.types.ndarray(dtype=f32, ndim=2)):
+    """z0 (R, R) = min depth [m] of hair samples touching each texel. One thread per segment,
+    sampled about once per texel along its length."""
+    size = z0.shape[0]
+    for e in range(n):
+        a, b = screen[seg[e]], screen[seg[e] + 1]
+        ns = ti.max(1, ti.cast(ti.ceil((b - a).xy.norm()), ti.i32))
+        for s in range(ns):
+            p = a + (b - a) * ((ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32))
+            i, j, fx, fy = bilinear(p, size)
+            for dy, dx in ti.static(ti.ndrange(2, 2)):
+                ti.atomic_min(z0[j + dy, i + dx], p[2])
+
+
+@ti.kernel
+def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                       screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                       width: ti.types.ndarray(dtype=f32, ndim=1), alpha: f32, texel: f32,
+                       z0: ti.types.ndarray(dtype=f32, ndim=2),
+                       bounds: ti.types.ndarray(dtype=f32, ndim=1),
+                       opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+    """Add each hair sample's opacity, alpha * (fraction of a texel its width [m] covers) *
+    (its length in texels), bilinearly into the slab (R, R, L) holding it behind z0."""
+    size, layers = z0.shape[0], opacity.shape[2]
+    for e in range(n):
+        k = seg[e]
+        a, b = screen[k], screen[k + 1]
+        length = (b - a).xy.norm()
+        ns = ti.max(1, ti.cast(ti.ceil(length), ti.i32))
+        for s in range(ns):
+            t = (ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32)
+            p = a + (b - a) * t
+            w = width[k] + (width[k + 1] - width[k]) * t
+            amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
+            i, j, fx, fy = bilinear(p, size)
+            for dy, dx in ti.static(ti.ndrange(2, 2)):
+                dz = p[2] - z0[j + dy, i + dx]
+                slab = 0
+                while slab < layers - 1 and bounds[slab + 1] <= dz:
+                    slab += 1
+                opacity[j + dy, i + dx, slab] += amount * corner_weight(fx, fy, dx, dy)
+
+
+@ti.kernel
+def accumulate_slabs(opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+    """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end."""
+    for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
+        total = f32(0.0)
+        for k in range(opacity.shape[2]):
+            total += opacity[i, j, k]
+            opacity[i, j, k] = total
+
+
+@ti.func
+def column_opacity(z0: ti.template(), opacity: ti.template(), bounds: ti.template(),
+                   i: ti.i32, j: ti.i32, depth: f32) -> f32:
+    """Hair opacity in front of `depth` [m] in texel (i, j), linear within a slab."""
+    result = f32(0.0)
+    dz = depth - z0[j, i]
+    if dz > 0.0:
+        layers = opacity.shape[2]
+        slab = 0
+        while slab < layers - 1 and bounds[slab + 1] <= dz:
+            slab += 1
+        before = f32(0.0)
+        if slab > 0:
+            before = opacity[j, i, slab - 1]
+        frac = ti.math.clamp((dz - bounds[slab]) / (bounds[slab + 1] - bounds[slab]),
+                             f32(0.0), f32(1.0))
+        result = before + (opacity[j, i, slab] - before) * frac
+    return result
+
+
+@ti.func
+def transmittance(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
+                  bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> f32:
+    """Fraction in [0, 1] of the key light reaching world point p [m]."""
+    result = f32(1.0)
+    if params[0] > 0.0:
+        s = project(view, proj, p)
+        i, j, fx, fy = bilinear(s, z0.shape[0])
+        hair, lit = f32(0.0), f32(0.0)
+        for dy, dx in ti.static(ti.ndrange(2, 2)):
+            w = corner_weight(fx, fy, dx, dy)
+            hair += w * column_opacity(z0, opacity, bounds, i + dx, j + dy, s[2])
+            if key_depth(mesh_key[j + dy, i + dx]) > s[2] - params[2]:
+                lit += w
+        result = ti.exp(-params[1] * hair) * lit
+    return result
+
+
+@ti.kernel
+def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+                         view: mat4f, proj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
+                         opacity: ti.types.ndarray(dtype=f32, ndim=3),
+                         bounds: ti.types.ndarray(dtype=f32, ndim=1),
+                         mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
+                         out: ti.types.ndarray(dtype=f32, ndim=1)):
+    """out[i] = transmittance at x[i] [m], shapes (n,). One thread per point."""
+    for k in range(n):
+        out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+
+
+def _scene_sphere(points: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    pts = np.concatenate([p for p in points if len(p)])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = float(np.sqrt(((pts - centre) ** 2).sum(axis=1).max()))
+    return centre, max(radius * 1.02, 1e-6)
+
+
+def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
+                     mesh: dict | None) -> ShadowMap:
+    """Render the light's maps. hair/mesh: dicts of uploaded device arrays from `render.frame`
+    (both: x, width, width_px (scratch), n_vertices, host_x; hair also: seg, n_segments,
+    opacity; mesh also: faces, n_faces) or None. Disabled settings or an empty scene give a map that lets all
+    light through."""
+    points = [d["host_x"] for d in (hair, mesh) if d is not None]
+    enabled = settings.enabled and bool(points)
+    r = settings.resolution if enabled else 16
+    layers = settings.layers
+    z0 = buffer("shadow_z0", f32, (r, r))
+    opacity = buffer("shadow_opacity", f32, (r, r, layers))
+    mesh_key = buffer("shadow_mesh_key", ti.i64, (r, r))
+    clear_shadow(z0, opacity)
+    clear_keys_2d(mesh_key)
+    if not enabled:
+        bounds = upload("shadow_bounds", settings.bounds(1.0), f32)
+        return ShadowMap(np.eye(4, dtype=np.float32), np.array([1, 0, 0, 1], np.float32), z0,
+                         opacity, bounds, mesh_key, np.zeros(4, np.float32))
+    centre, radius = _scene_sphere(points)
+    light = OrthoView(to_light=np.asarray(to_light, float), centre=centre, radius=radius,
+                      resolution=r)
+    view, proj = light.matrices()
+    bounds = upload("shadow_bounds", settings.bounds(2.0 * radius), f32)
+    if mesh is not None and settings.mesh_shadows:
+        ls = buffer("shadow_mesh_screen", vec4f, (max(mesh["n_vertices"], 1),), 4)
+        project_vertices(mesh["n_vertices"], mesh["x"], mesh["width"], view, proj, ls,
+                         mesh["width_px"])
+        raster_triangles(mesh["n_faces"], ls, mesh["faces"], 0.0, mesh_key)
+    if hair is not None:
+        ls = buffer("shadow_hair_screen", vec4f, (hair["n_vertices"],), 4)
+        project_vertices(hair["n_vertices"], hair["x"], hair["width"], view, proj, ls,
+                         hair["width_px"])
+        splat_hair_depth(hair["n_segments"], hair["seg"], ls, z0)
+        splat_hair_opacity(hair["n_segments"], hair["seg"], ls, hair["width"], hair["opacity"],
+                           light.texel_size, z0, bounds, opacity)
+        accumulate_slabs(opacity)
+    params = np.array([1.0, settings.density, 2.0 * light.texel_size, light.texel_size],
+                      dtype=np.float32)
+    return ShadowMap(view, proj, z0, opacity, bounds, mesh_key, params)
