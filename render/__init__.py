@@ -11,8 +11,10 @@ from .geometry import Hair, Mesh
 from .runtime import init
 from .shading import HairShading, Light, Lighting, kajiya_kay
 from .shadows import ShadowSettings
+from .video import ProgressBar, Turntable, read_png, turntable, write_mp4, write_png
 
 __all__ = [
-    "Camera", "Hair", "HairShading", "Light", "Lighting", "Mesh", "RenderSettings",
-    "ShadowSettings", "hair_shadow", "init", "kajiya_kay", "render_buffers", "render_frame",
+    "Camera", "Hair", "HairShading", "Light", "Lighting", "Mesh", "ProgressBar",
+    "RenderSettings", "ShadowSettings", "Turntable", "hair_shadow", "init", "kajiya_kay",
+    "read_png", "render_buffers", "render_frame", "turntable", "write_mp4", "write_png",
 ]

@@ -124,9 +124,8 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(),
     mesh_key = buffer("mesh_key", ti.i64, (height, width))
     kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
     tail = buffer("tail", vec4f, (height, width), 4)
-    tail_log = buffer("tail_log", f32, (height, width))
     base = buffer("base", vec3f, (height, width), 3)
-    clear_frame(mesh_key, kbuf, tail, tail_log)
+    clear_frame(mesh_key, kbuf, tail)
 
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
@@ -143,11 +142,11 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(),
                         hd["opacity"], eye, to_light, light, ambient,
                         settings.hair_shading.packed(), hd["rgba"])
     raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
-                mesh_key, kbuf, tail, tail_log)
+                mesh_key, kbuf, tail)
 
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
-    composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, tail_log, base,
+    composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, base,
               rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))

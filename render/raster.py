@@ -9,8 +9,9 @@ primitive id when a pixel is resolved, so the buffers hold keys only.
 Hair transparency. Each pixel keeps its K nearest hair fragments exactly (a k-buffer filled by
 a chain of `atomic_min`: inserting swaps the key with each slot's larger value, so the slots
 stay sorted and a key pushed out of the last slot is never among the K nearest). Fragments
-pushed out are blended order-independently into a "tail" layer (alpha-weighted mean colour,
-opacity 1 - prod(1 - alpha)) behind the K sorted ones: the nearer strand always wins at a
+pushed out are blended order-independently into a "tail" layer behind the K sorted ones:
+opacity 1 - prod(1 - alpha) = 1 - exp(-sum tau), tau = -log(1 - alpha), and the tau-weighted
+mean colour (4 atomic adds per fragment): the nearer strand always wins at a
 crossing, and dense hair far behind still darkens and tints the pixel.
 
 Anti-aliasing. A fibre of width w pixels covers a pixel by the overlap of the fibre's
@@ -53,15 +54,13 @@ def key_depth(key: ti.i64) -> f32:
 @ti.kernel
 def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                 kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
-                tail: ti.types.ndarray(dtype=vec4f, ndim=2),
-                tail_log: ti.types.ndarray(dtype=f32, ndim=2)):
-    """Empty the depth buffer (H, W), k-buffer (H, W, K) and tail accumulators (H, W)."""
+                tail: ti.types.ndarray(dtype=vec4f, ndim=2)):
+    """Empty the depth buffer (H, W), k-buffer (H, W, K) and tail accumulator (H, W)."""
     for i, j in mesh_key:
         mesh_key[i, j] = empty_key()
         for k in range(kbuf.shape[2]):
             kbuf[i, j, k] = empty_key()
         tail[i, j] = vec4f(0.0, 0.0, 0.0, 0.0)
-        tail_log[i, j] = 0.0
 
 
 @ti.kernel
@@ -150,22 +149,48 @@ def fragment(e: ti.i32, px: ti.i32, py: ti.i32, seg: ti.template(), screen: ti.t
 def insert(kbuf: ti.template(), py: ti.i32, px: ti.i32, key: ti.i64) -> ti.i64:
     """Insert key into the pixel's sorted k-buffer; returns the key pushed out (or empty)."""
     v = key
-    k = 0
-    while k < kbuf.shape[2] and v != empty_key():
-        old = ti.atomic_min(kbuf[py, px, k], v)
-        v = ti.max(old, v)
-        k += 1
+    # slots only ever decrease, so a key behind the last slot now stays out of the K nearest
+    if key > kbuf[py, px, kbuf.shape[2] - 1]:
+        v = key
+    else:
+        k = 0
+        while k < kbuf.shape[2] and v != empty_key():
+            old = ti.atomic_min(kbuf[py, px, k], v)
+            v = ti.max(old, v)
+            k += 1
     return v
 
 
 @ti.func
-def blend_tail(e: ti.i32, px: ti.i32, py: ti.i32, seg: ti.template(), screen: ti.template(),
-               width_px: ti.template(), rgba: ti.template(), tail: ti.template(),
-               tail_log: ti.template()):
-    f = fragment(e, px, py, seg, screen, width_px, rgba)
-    a = ti.min(f[3], f32(0.999))
-    tail[py, px] += vec4f(f[0] * a, f[1] * a, f[2] * a, a)
-    tail_log[py, px] += ti.log(f32(1.0) - a)
+def blend_tail(f: vec4f, px: ti.i32, py: ti.i32, tail: ti.template()):
+    """Add fragment f = (rgb, alpha) to the pixel's unordered tail: optical depth
+    -log(1 - alpha) and the optical-depth-weighted colour, 4 atomic adds."""
+    tau = -ti.log(f32(1.0) - ti.min(f[3], f32(0.999)))
+    tail[py, px] += vec4f(f[0] * tau, f[1] * tau, f[2] * tau, tau)
+
+
+@ti.func
+def hair_pixel(e: ti.i32, px: ti.i32, py: ti.i32, a: vec4f, b: vec4f, seg: ti.template(),
+               screen: ti.template(), width_px: ti.template(), rgba: ti.template(),
+               mesh_key: ti.template(), kbuf: ti.template(), tail: ti.template()):
+    """Fragment of segment e (screen endpoints a, b) at pixel (px, py): depth-test against the
+    meshes, insert into the k-buffer, send whatever falls out to the tail."""
+    i = seg[e]
+    p = vec2f(ti.cast(px, f32) + f32(0.5), ti.cast(py, f32) + f32(0.5))
+    cv = coverage(p, a, b, width_px[i], width_px[i + 1])
+    if cv[0] > 0.0:
+        t = cv[1]
+        inv_w = a[3] + t * (b[3] - a[3])
+        depth = (a[2] * a[3] + t * (b[2] * b[3] - a[2] * a[3])) / inv_w
+        key = pack(depth, e)
+        if (key >> 32) < (mesh_key[py, px] >> 32):
+            out = insert(kbuf, py, px, key)
+            if out == key:
+                c = rgba[i] * (f32(1.0) - t) + rgba[i + 1] * t
+                blend_tail(vec4f(c[0], c[1], c[2], cv[0] * c[3]), px, py, tail)
+            elif out != empty_key():
+                blend_tail(fragment(key_prim(out), px, py, seg, screen, width_px, rgba),
+                           px, py, tail)
 
 
 @ti.kernel
@@ -175,47 +200,34 @@ def raster_hair(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                 rgba: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32,
                 mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                 kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
-                tail: ti.types.ndarray(dtype=vec4f, ndim=2),
-                tail_log: ti.types.ndarray(dtype=f32, ndim=2)):
+                tail: ti.types.ndarray(dtype=vec4f, ndim=2)):
     """Insert the fragments of n hair segments (seg[e] -> seg[e] + 1) in front of the meshes
-    into the k-buffer (H, W, K); fragments pushed out go to the tail. One thread per segment,
-    walking the pixels near the segment column by column along its major axis."""
+    into the k-buffer (H, W, K); fragments pushed out go to the tail (H, W). One thread per
+    segment, walking the pixels near the segment column by column along its major axis."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
     for e in range(n):
         i = seg[e]
         a, b = screen[i], screen[i + 1]
-        if ti.min(a[2], b[2]) > near:
-            xmajor = ti.abs(b[0] - a[0]) >= ti.abs(b[1] - a[1])
-            am, an = ti.select(xmajor, a[0], a[1]), ti.select(xmajor, a[1], a[0])
-            bm, bn = ti.select(xmajor, b[0], b[1]), ti.select(xmajor, b[1], b[0])
-            size_m, size_n = ti.select(xmajor, width, height), ti.select(xmajor, height, width)
-            dm, dn = bm - am, bn - an
-            length = ti.sqrt(dm * dm + dn * dn)
-            if length > 1e-6:
-                # pixel centres with non-zero coverage lie within `reach` of the centre line
-                reach = f32(0.5) * ti.max(width_px[i], width_px[i + 1]) + f32(0.5)
-                ext_m = reach * ti.abs(dn) / length
-                ext_n = reach * length / ti.abs(dm)
-                m0 = ti.max(ti.cast(ti.ceil(ti.min(am, bm) - ext_m - 0.5), ti.i32), 0)
-                m1 = ti.min(ti.cast(ti.floor(ti.max(am, bm) + ext_m - 0.5), ti.i32), size_m - 1)
-                for m in range(m0, m1 + 1):
-                    centre = an + (ti.cast(m, f32) + f32(0.5) - am) * dn / dm
-                    n0 = ti.max(ti.cast(ti.ceil(centre - ext_n - 0.5), ti.i32), 0)
-                    n1 = ti.min(ti.cast(ti.floor(centre + ext_n - 0.5), ti.i32), size_n - 1)
-                    for q in range(n0, n1 + 1):
-                        px, py = ti.select(xmajor, m, q), ti.select(xmajor, q, m)
-                        p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
-                        cv = coverage(p, a, b, width_px[i], width_px[i + 1])
-                        if cv[0] > 0.0:
-                            t = cv[1]
-                            inv_w = a[3] + t * (b[3] - a[3])
-                            depth = (a[2] * a[3] + t * (b[2] * b[3] - a[2] * a[3])) / inv_w
-                            key = pack(depth, e)
-                            if (key >> 32) < (mesh_key[py, px] >> 32):
-                                out = insert(kbuf, py, px, key)
-                                if out != empty_key():
-                                    blend_tail(key_prim(out), px, py, seg, screen, width_px,
-                                               rgba, tail, tail_log)
+        xmajor = ti.abs(b[0] - a[0]) >= ti.abs(b[1] - a[1])
+        am, an = ti.select(xmajor, a[0], a[1]), ti.select(xmajor, a[1], a[0])
+        bm, bn = ti.select(xmajor, b[0], b[1]), ti.select(xmajor, b[1], b[0])
+        size_m, size_n = ti.select(xmajor, width, height), ti.select(xmajor, height, width)
+        dm, dn = bm - am, bn - an
+        length = ti.sqrt(dm * dm + dn * dn)
+        if ti.min(a[2], b[2]) > near and length > 1e-6:
+            # pixel centres with non-zero coverage lie within `reach` of the centre line
+            reach = f32(0.5) * ti.max(width_px[i], width_px[i + 1]) + f32(0.5)
+            ext_m = reach * ti.abs(dn) / length
+            ext_n = reach * length / ti.abs(dm)
+            m0 = ti.max(ti.cast(ti.ceil(ti.min(am, bm) - ext_m - f32(0.5)), ti.i32), 0)
+            m1 = ti.min(ti.cast(ti.floor(ti.max(am, bm) + ext_m - f32(0.5)), ti.i32), size_m - 1)
+            for m in range(m0, m1 + 1):
+                centre = an + (ti.cast(m, f32) + f32(0.5) - am) * dn / dm
+                n0 = ti.max(ti.cast(ti.ceil(centre - ext_n - f32(0.5)), ti.i32), 0)
+                n1 = ti.min(ti.cast(ti.floor(centre + ext_n - f32(0.5)), ti.i32), size_n - 1)
+                for q in range(n0, n1 + 1):
+                    hair_pixel(e, ti.select(xmajor, m, q), ti.select(xmajor, q, m), a, b, seg,
+                               screen, width_px, rgba, mesh_key, kbuf, tail)
 
 
 @ti.kernel
@@ -225,7 +237,6 @@ def composite(seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
               rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
               kbuf: ti.types.ndarray(dtype=ti.i64, ndim=3),
               tail: ti.types.ndarray(dtype=vec4f, ndim=2),
-              tail_log: ti.types.ndarray(dtype=f32, ndim=2),
               base: ti.types.ndarray(dtype=vec3f, ndim=2),
               out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
               out_alpha: ti.types.ndarray(dtype=f32, ndim=2)):
@@ -242,7 +253,7 @@ def composite(seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             k += 1
         tl = tail[py, px]
         if tl[3] > 0.0:
-            a = f32(1.0) - ti.exp(tail_log[py, px])
+            a = f32(1.0) - ti.exp(-tl[3])
             c += trans * a * vec3f(tl[0], tl[1], tl[2]) / tl[3]
             trans *= f32(1.0) - a
         out_rgb[py, px] = c + trans * base[py, px]

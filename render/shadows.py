@@ -98,11 +98,19 @@ def corner_weight(fx: f32, fy: f32, dx: ti.i32, dy: ti.i32) -> f32:
     return wx * wy
 
 
+@ti.func
+def texel_of(p: vec4f, size: ti.i32):
+    """Texel (i, j) holding screen point p, clamped to the map."""
+    i = ti.math.clamp(ti.cast(ti.floor(p[0]), ti.i32), 0, size - 1)
+    j = ti.math.clamp(ti.cast(ti.floor(p[1]), ti.i32), 0, size - 1)
+    return i, j
+
+
 @ti.kernel
 def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                      screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                      z0: ti.types.ndarray(dtype=f32, ndim=2)):
-    """z0 (R, R) = min depth [m] of hair samples touching each texel. One thread per segment,
+    """z0 (R, R) = min depth [m] of the hair samples in each texel. One thread per segment,
     sampled about once per texel along its length."""
     size = z0.shape[0]
     for e in range(n):
@@ -110,9 +118,10 @@ def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
         ns = ti.max(1, ti.cast(ti.ceil((b - a).xy.norm()), ti.i32))
         for s in range(ns):
             p = a + (b - a) * ((ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32))
-            i, j, fx, fy = bilinear(p, size)
-            for dy, dx in ti.static(ti.ndrange(2, 2)):
-                ti.atomic_min(z0[j + dy, i + dx], p[2])
+            i, j = texel_of(p, size)
+            # most samples lie behind the front: a plain read spares them the atomic
+            if p[2] < z0[j, i]:
+                ti.atomic_min(z0[j, i], p[2])
 
 
 @ti.kernel
@@ -123,7 +132,7 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                        bounds: ti.types.ndarray(dtype=f32, ndim=1),
                        opacity: ti.types.ndarray(dtype=f32, ndim=3)):
     """Add each hair sample's opacity, alpha * (fraction of a texel its width [m] covers) *
-    (its length in texels), bilinearly into the slab (R, R, L) holding it behind z0."""
+    (its length in texels), into the slab (R, R, L) that holds it behind its texel's z0."""
     size, layers = z0.shape[0], opacity.shape[2]
     for e in range(n):
         k = seg[e]
@@ -134,14 +143,12 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             t = (ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32)
             p = a + (b - a) * t
             w = width[k] + (width[k + 1] - width[k]) * t
-            amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
-            i, j, fx, fy = bilinear(p, size)
-            for dy, dx in ti.static(ti.ndrange(2, 2)):
-                dz = p[2] - z0[j + dy, i + dx]
-                slab = 0
-                while slab < layers - 1 and bounds[slab + 1] <= dz:
-                    slab += 1
-                opacity[j + dy, i + dx, slab] += amount * corner_weight(fx, fy, dx, dy)
+            i, j = texel_of(p, size)
+            dz = p[2] - z0[j, i]
+            slab = 0
+            while slab < layers - 1 and bounds[slab + 1] <= dz:
+                slab += 1
+            opacity[j, i, slab] += alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
 
 
 @ti.kernel
