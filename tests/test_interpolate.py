@@ -1,0 +1,349 @@
+"""Dense hair interpolation: exact reproduction of guides, curls kept, frames followed, heads
+avoided, rigid motion carried; each checked against geometry computed here in numpy."""
+
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_hair.interpolate import (Interpolator, ScalpChart, bench_interpolation, delaunay,
+                                     sample_scalp_roots)
+
+MODES = [dict(mode="barycentric"), dict(mode="clump"), dict(mode="blend", blend=0.5),
+         dict(mode="blend", blend="per-strand")]
+
+
+def frame_of(n):
+    """Two unit vectors perpendicular to unit n [M, 3], varying smoothly over a cap about +z, so
+    that helices built on them differ in phase only by the phases asked for."""
+    assert np.abs(n[:, 0]).max() < 0.95
+    s = np.cross(n, [1.0, 0.0, 0.0])
+    s /= np.linalg.norm(s, axis=1, keepdims=True)
+    return s, np.cross(n, s)
+
+
+def helices(roots, normals, n_nodes=64, length=0.2, radius=0.01, pitch=0.02, phases=None):
+    """Helices about the root normals, evenly spaced in arc length, phase per strand [rad]."""
+    phases = np.zeros(len(roots)) if phases is None else phases
+    s1, s2 = frame_of(normals)
+    rise = pitch / (2 * math.pi)
+    ang = np.linspace(0, length, n_nodes)[None] / math.hypot(radius, rise) + phases[:, None]
+    a = radius * (np.cos(ang) - np.cos(phases)[:, None])
+    b = radius * (np.sin(ang) - np.sin(phases)[:, None])
+    h = rise * (ang - phases[:, None])
+    return roots[:, None] + a[..., None] * s1[:, None] + b[..., None] * s2[:, None] + h[..., None] * normals[:, None]
+
+
+def mean_curvature(x):
+    """Mean |discrete curvature| per strand [1/m]: turning angle / mean of the adjacent edges."""
+    e = np.diff(x, axis=1)
+    le = np.linalg.norm(e, axis=2)
+    cos = (e[:, 1:] * e[:, :-1]).sum(2) / (le[:, 1:] * le[:, :-1])
+    return (np.arccos(np.clip(cos, -1, 1)) / (0.5 * (le[:, 1:] + le[:, :-1]))).mean(1)
+
+
+def random_cap(n, radius=0.1, max_polar_deg=40.0, seed=5):
+    rng = np.random.default_rng(seed)
+    cos_p = rng.uniform(math.cos(math.radians(max_polar_deg)), 1.0, n)
+    az = rng.uniform(0, 2 * math.pi, n)
+    sin_p = np.sqrt(1 - cos_p ** 2)
+    return radius * np.stack([sin_p * np.cos(az), sin_p * np.sin(az), cos_p], axis=1)
+
+
+def build(kwargs, roots, normals, dense, n_nodes, **extra):
+    kw = dict(kwargs, **extra)
+    if kw.get("blend") == "per-strand":
+        kw["blend"] = np.linspace(0.0, 1.0, len(dense))
+    return Interpolator(roots, normals, dense, n_nodes, **kw)
+
+
+@pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
+def test_dense_root_on_a_guide_root_reproduces_that_guide(kwargs):
+    roots, normals = sample_scalp_roots(30, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=24, phases=np.linspace(0, 1, 30))
+    picks = [0, 7, 29]
+    dense = np.concatenate([roots[picks], random_cap(50)])
+    out = build(kwargs, roots, normals, dense, 24, clump_radius=0.002).interpolate(guides)
+    np.testing.assert_allclose(out[:3], guides[picks], rtol=0, atol=1e-12)
+    # the others are genuinely interpolated: not a copy of any guide
+    assert np.min(np.abs(out[3:, None, -1] - guides[None, :, -1]).max(axis=2)) > 1e-5
+
+
+def clumps(roots, normals, per_guide, radius, seed=6):
+    """Roots scattered in the tangent plane within `radius` [m] of each guide root."""
+    rng = np.random.default_rng(seed)
+    s1, s2 = frame_of(normals)
+    r = radius * np.sqrt(rng.random((len(roots), per_guide, 1)))
+    a = rng.uniform(0, 2 * math.pi, (len(roots), per_guide, 1))
+    return (roots[:, None] + r * (np.cos(a) * s1[:, None] + np.sin(a) * s2[:, None])).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
+@pytest.mark.parametrize("variation", [{}, dict(length_variation=0.3, curl_phase_variation=2.0)])
+def test_dense_strands_keep_the_guides_curl(kwargs, variation):
+    """Curl statistics survive interpolation. Barycentric strands may root anywhere between the
+    guides; clumped strands root within 2.5 mm of their guide, a quarter of the curl radius:
+    an offset d in the frame of a curve of curvature k scales the strand's curvature by
+    1 / (1 - k d cos(angle)), so a clump wider than the curl would not be a ringlet."""
+    roots, normals = sample_scalp_roots(40, max_polar_deg=45.0)
+    rng = np.random.default_rng(3)
+    guides = helices(roots, normals, n_nodes=64, phases=rng.uniform(-0.4, 0.4, 40))
+    if kwargs["mode"] == "barycentric":
+        dense = random_cap(400, max_polar_deg=40.0)
+    else:
+        dense = clumps(roots, normals, 10, 0.0025)
+    out = build(kwargs, roots, normals, dense, 64, **variation).interpolate(guides)
+    k_guides, k_dense = mean_curvature(guides), mean_curvature(out)
+    assert k_guides.mean() > 50.0  # curly: ~90 1/m for a 1 cm helix, not a straight strand
+    # measured: mean within 2.2 %, worst strand 11 %
+    assert abs(k_dense.mean() / k_guides.mean() - 1.0) < 0.05
+    assert np.all(np.abs(k_dense / k_guides.mean() - 1.0) < 0.15)
+
+
+def transport_frames(x, u0):
+    """Rotation-minimising offsets along a polyline by Rodrigues rotations (independent of the
+    module's closed form): returns the transported vector per edge [N-1, 3]."""
+    e = np.diff(x, axis=0)
+    t = e / np.linalg.norm(e, axis=1, keepdims=True)
+    out, u = [u0], u0
+    for a, b in zip(t[:-1], t[1:]):
+        axis = np.cross(a, b)
+        s, c = np.linalg.norm(axis), np.dot(a, b)
+        if s > 1e-15:
+            k = axis / s
+            u = u * c + np.cross(k, u) * s + k * np.dot(k, u) * (1 - c)
+        out.append(u)
+    return np.array(out)
+
+
+def test_clump_offset_is_carried_by_the_guides_bishop_frame():
+    roots = np.array([[0.0, 0.0, 0.1], [0.03, 0.0, 0.1], [0.0, 0.03, 0.1]])
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    s = np.linspace(0, 1, 40)
+    # bends through 90 degrees and twists out of plane: a torsional space curve
+    shape = np.stack([0.1 * np.sin(1.5 * s) ** 2, 0.05 * s ** 3, 0.15 * np.sin(1.6 * s)], axis=1)
+    shape[1, :2] = 0.0  # first edge along the normal, so the offset starts as given
+    guides = roots[:, None] + shape[None]
+    offset = np.array([0.004, -0.003, 0.0])
+    dense = roots[:1] + offset
+    out = Interpolator(roots, normals, dense, 40, mode="clump").interpolate(guides)[0]
+    carried = transport_frames(guides[0], offset)  # node i > 0 rides on edge i - 1
+    expect = guides[0] + np.concatenate([[offset], carried])
+    np.testing.assert_allclose(out, expect, atol=1e-12)
+    dist = np.linalg.norm(out - guides[0], axis=1)
+    np.testing.assert_allclose(dist, np.linalg.norm(offset), rtol=1e-10)
+    assert np.linalg.norm(carried[-1] - offset) > 2e-3  # not vacuous: the frame really turned
+
+
+@pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
+def test_rigid_head_motion_moves_dense_hair_rigidly(kwargs):
+    roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=16)
+    dense = random_cap(60, max_polar_deg=45.0)
+    interp = build(kwargs, roots, normals, dense, 16, frizz=0.002, clump_radius=0.003,
+                   length_variation=0.2, head=((0, 0, 0), 0.1))
+    rest = interp.interpolate(guides)
+    angle, axis = 0.7, np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rot = np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+    trans = np.array([0.02, -0.05, 0.1])
+    moved = interp.interpolate(guides @ rot.T + trans, head_rotation=rot, head_translation=trans)
+    np.testing.assert_allclose(moved, rest @ rot.T + trans, atol=1e-12)
+
+
+def hanging_setup(n_nodes=20):
+    roots, normals = sample_scalp_roots(40, max_polar_deg=80.0)
+    # strands fall straight down from the roots: through the head unless pushed out
+    down = roots[:, None] + np.linspace(0, 0.25, n_nodes)[None, :, None] * np.array([0.0, 0.0, -1.0])
+    return roots, normals, down, random_cap(300, max_polar_deg=75.0)
+
+
+def test_dense_nodes_end_outside_a_sphere_head_by_the_margin():
+    roots, normals, guides, dense = hanging_setup()
+    free = Interpolator(roots, normals, dense, 20, mode="blend").interpolate(guides)
+    r_free = np.linalg.norm(free[:, 1:], axis=2)
+    assert (r_free < 0.1).mean() > 0.2  # not vacuous: many nodes start inside the head
+    margin = 0.003
+    out = Interpolator(roots, normals, dense, 20, mode="blend", head=((0, 0, 0), 0.1),
+                       head_margin=margin).interpolate(guides)
+    assert np.linalg.norm(out[:, 1:], axis=2).min() >= 0.1 + margin - 1e-12
+    # roots stay on the scalp, nodes clear of the head stay put (the two interpolators chart the
+    # scalp about different centres, hence round-off)
+    np.testing.assert_allclose(out[:, 0], free[:, 0], rtol=0, atol=1e-15)
+    untouched = r_free >= 0.1 + margin + 1e-12
+    np.testing.assert_allclose(out[:, 1:][untouched], free[:, 1:][untouched], rtol=0, atol=1e-15)
+
+
+def ellipsoid_distance(p, r):
+    """Unsigned distance from p [3] to the ellipsoid with semi-axes r, by nested grid search."""
+    th0, th1, ph0, ph1 = 0.0, math.pi, -math.pi, math.pi
+    for _ in range(6):
+        th, ph = np.meshgrid(np.linspace(th0, th1, 61), np.linspace(ph0, ph1, 121), indexing="ij")
+        y = np.stack([r[0] * np.sin(th) * np.cos(ph), r[1] * np.sin(th) * np.sin(ph), r[2] * np.cos(th)], -1)
+        d = np.linalg.norm(y - p, axis=-1)
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        dth, dph = 2 * (th1 - th0) / 60, 2 * (ph1 - ph0) / 120
+        th0, th1, ph0, ph1 = th[i, j] - dth, th[i, j] + dth, ph[i, j] - dph, ph[i, j] + dph
+    return d.min()
+
+
+def test_dense_nodes_end_outside_an_ellipsoid_head_by_the_margin():
+    roots, normals, guides, dense = hanging_setup()
+    radii, margin = np.array([0.085, 0.115, 0.1]), 0.004
+    roots = roots * radii / 0.1  # roots on the ellipsoid
+    guides = guides - guides[:, :1] + roots[:, None]
+    out = Interpolator(roots, normals, dense * radii / 0.1, 20, head=((0, 0, 0), radii),
+                       head_margin=margin).interpolate(guides)
+    nodes = out[:, 1:].reshape(-1, 3)
+    level = np.sqrt(((nodes / radii) ** 2).sum(1))
+    assert level.min() > 1.0
+    near = nodes[np.argsort(level)[:40]]  # the ones pushed hardest sit right at the margin
+    dist = np.array([ellipsoid_distance(p, radii) for p in near])
+    assert dist.min() >= margin - 1e-7
+    assert np.abs(dist - margin).min() < 1e-6  # and they were pushed, not left far away
+
+
+def test_callable_collider_is_applied_to_non_root_nodes():
+    roots, normals, guides, dense = hanging_setup()
+
+    def floor(p):
+        return np.maximum(p, [-np.inf, -np.inf, 0.05])
+    interp = Interpolator(roots, normals, dense, 20, head=floor)
+    out = interp.interpolate(guides)
+    assert out[:, 1:, 2].min() >= 0.05 and out[:, 0, 2].min() < 0.05
+    np.testing.assert_array_equal(interp.interpolate_ndarray(guides).to_numpy(), out)
+
+
+def test_frizz_grows_toward_the_tip_and_is_fixed_across_frames():
+    roots, normals = sample_scalp_roots(20, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=32)
+    dense = random_cap(200)
+    frizz = 0.002
+    plain = Interpolator(roots, normals, dense, 32, mode="clump").interpolate(guides)
+    a = Interpolator(roots, normals, dense, 32, mode="clump", frizz=frizz, seed=1)
+    out = a.interpolate(guides)
+    np.testing.assert_array_equal(out, a.interpolate(guides))
+    dev = np.linalg.norm(out - plain, axis=2)
+    assert dev[:, 0].max() == 0.0
+    assert dev[:, 8].mean() < dev[:, 20].mean() < dev[:, 31].mean()
+    assert dev.max() <= 1.5 * math.sqrt(2) * frizz * (1 + 1e-9)
+    assert 0.3 * frizz < dev[:, 31].mean() < 1.2 * frizz
+    other = Interpolator(roots, normals, dense, 32, mode="clump", frizz=frizz, seed=2).interpolate(guides)
+    assert np.abs(other - out).max() > 0.1 * frizz
+
+
+def test_length_variation_and_clump_radius_on_straight_guides():
+    roots, normals = sample_scalp_roots(30, max_polar_deg=50.0)
+    guides = roots[:, None] + np.linspace(0, 0.2, 16)[None, :, None] * normals[:, None]
+    dense = random_cap(300, max_polar_deg=45.0)
+    out = Interpolator(roots, normals, dense, 16, mode="clump", length_variation=0.4).interpolate(guides)
+    length = np.linalg.norm(np.diff(out, axis=1), axis=2).sum(1)
+    assert 0.6 * 0.2 - 1e-9 <= length.min() < 0.65 * 0.2 and 0.95 * 0.2 < length.max() <= 0.2 + 1e-9
+    interp = Interpolator(roots, normals, dense, 16, mode="clump", clump_radius=0.001)
+    tips = interp.interpolate(guides)[:, -1]
+    gap = np.linalg.norm(tips - guides[interp.guide_of, -1], axis=1)
+    assert gap.max() <= 0.001 + 1e-12
+    root_gap = np.linalg.norm(dense - roots[interp.guide_of], axis=1)
+    assert root_gap.max() > 0.003  # roots start wider than the clump radius
+
+
+def test_ndarray_result_matches_numpy_and_accepts_ndarray_guides():
+    roots, normals = sample_scalp_roots(20, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=12)
+    interp = Interpolator(roots, normals, random_cap(40), 12, frizz=0.001)
+    nd = ti.ndarray(ti.math.vec3, (20, 12))
+    nd.from_numpy(guides)
+    a = interp.interpolate(guides)
+    res = interp.interpolate_ndarray(nd)
+    assert isinstance(res, ti.Ndarray) and tuple(res.shape) == (40, 12)
+    np.testing.assert_array_equal(res.to_numpy(), a)
+
+
+def hull_area(p):
+    """Convex hull area of 2D points by the monotone chain (independent of the triangulation)."""
+    p = sorted(map(tuple, p))
+    def half(pts):
+        h = []
+        for q in pts:
+            while len(h) >= 2 and (h[-1][0] - h[-2][0]) * (q[1] - h[-2][1]) - (h[-1][1] - h[-2][1]) * (q[0] - h[-2][0]) <= 0:
+                h.pop()
+            h.append(q)
+        return h
+    hull = np.array(half(p)[:-1] + half(p[::-1])[:-1])
+    x, y = hull[:, 0], hull[:, 1]
+    return 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
+
+
+@pytest.mark.parametrize("kind", ["random", "grid"])
+def test_delaunay_is_empty_circle_and_covers_the_hull(kind):
+    rng = np.random.default_rng(4)
+    if kind == "random":
+        p = rng.random((120, 2))
+    else:  # cocircular quadruples everywhere
+        p = np.stack(np.meshgrid(np.arange(8.0), np.arange(7.0)), -1).reshape(-1, 2)
+    tri = delaunay(p)
+    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+    area = 0.5 * ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+    assert area.min() > 0
+    assert abs(area.sum() - hull_area(p)) < 1e-9 * hull_area(p)
+    for t in tri:  # no point strictly inside any circumcircle (incircle determinant)
+        m = p[t][None, :, :] - p[:, None, :]  # [M, 3, 2]: triangle corners relative to each point
+        det = np.linalg.det(np.concatenate([m, (m ** 2).sum(2, keepdims=True)], axis=2))
+        assert det.max() < 1e-9
+
+
+def test_weights_reproduce_chart_positions_inside_and_clamp_outside():
+    roots, normals = sample_scalp_roots(30, max_polar_deg=40.0)
+    dense = random_cap(200, max_polar_deg=55.0)  # some outside the guides' hull
+    interp = Interpolator(roots, normals, dense, 8, mode="barycentric")
+    chart = ScalpChart.fit(roots, normals)
+    g2, d2 = chart.project(roots), chart.project(dense)
+    w = interp.weights
+    assert w.min() >= -1e-12 and np.allclose(w.sum(1), 1.0)
+    recon = (w[:, :, None] * g2[interp.corners]).sum(1)
+    inside = np.linalg.norm(recon - d2, axis=1) < 1e-12
+    polar = np.degrees(np.arccos(dense[:, 2] / 0.1))
+    assert inside[polar < 30].all() and not inside[polar > 50].any()
+
+
+@pytest.mark.parametrize("kwargs, phrase", [
+    (dict(mode="fancy"), "mode must be one of"),
+    (dict(blend=1.5), "blend must be"),
+    (dict(length_variation=1.0), "length_variation must be a number in [0, 1)"),
+    (dict(frizz=-1.0), "frizz must be"),
+    (dict(curl_phase_variation=10.0), "curl_phase_variation must be"),
+    (dict(clump_radius=-0.1), "clump_radius must be"),
+    (dict(head=((0, 0, 0), -0.1)), "radii > 0"),
+    (dict(head_margin=-1.0), "head_margin must be"),
+])
+def test_bad_parameters_raise_value_errors_naming_them(kwargs, phrase):
+    roots, normals = sample_scalp_roots(10)
+    with pytest.raises(ValueError) as info:
+        Interpolator(roots, normals, random_cap(5), 8, **kwargs)
+    assert phrase in str(info.value)
+
+
+def test_bad_inputs_raise_value_errors_naming_them():
+    roots, normals = sample_scalp_roots(10)
+    with pytest.raises(ValueError, match="guide_roots must hold at least 3"):
+        Interpolator(roots[:2], normals[:2], random_cap(5), 8)
+    with pytest.raises(ValueError, match=r"guide_normals must have shape \[10, 3\]"):
+        Interpolator(roots, normals[:9], random_cap(5), 8)
+    with pytest.raises(ValueError, match="n_nodes must be an integer >= 3"):
+        Interpolator(roots, normals, random_cap(5), 2)
+    interp = Interpolator(roots, normals, random_cap(5), 8)
+    with pytest.raises(ValueError, match=r"guide_positions must have shape \[10, 8, 3\]"):
+        interp.interpolate(np.zeros((10, 7, 3)))
+    bad = np.zeros((10, 8, 3))
+    bad[3, 4, 1] = np.nan
+    with pytest.raises(ValueError, match="guide_positions must be finite"):
+        interp.interpolate(bad)
+    with pytest.raises(ValueError, match="head_rotation must be a 3x3 rotation"):
+        interp.interpolate(np.zeros((10, 8, 3)), head_rotation=2 * np.eye(3))
+
+
+def test_bench_reports_positive_timings():
+    r = bench_interpolation(n_dense=400, n_nodes=8, n_guides=30, repeats=2)
+    assert r["n_dense"] == 400 and r["ms_per_frame_ndarray"] > 0 and r["ms_per_frame_numpy"] > 0
+    assert r["first_call_s"] >= r["ms_per_frame_ndarray"] / 1e3 * 0.5
