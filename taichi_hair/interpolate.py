@@ -9,16 +9,17 @@ clumping, and seeded per-strand variation.
 Per frame (Taichi, ndarray arguments so each kernel compiles once per process):
   1. `_guide_frames`: Bishop frame of every guide edge by parallel transport from the root
      (one thread per guide: the transport is serial along the strand).
-  2. `_dense_nodes`: one thread per (dense strand, node): barycentric interpolation of the three
-     guides' root-relative shapes, clump interpolation (one guide plus an offset carried in its
-     Bishop frame, so it follows the guide's bending and twist), the per-strand blend of both,
-     and frizz growing toward the tip.
-  3. `_push_out_of_ellipsoid`: nodes closer to the head than a margin move out along the
-     surface normal (only when the head is a sphere or ellipsoid).
+  2. `_dense_nodes`: one thread per dense strand: barycentric interpolation of the three guides'
+     root-relative shapes, clump interpolation (one guide plus an offset carried in its Bishop
+     frame, so it follows the guide's bending and twist), the per-strand blend of both, and
+     frizz growing toward the tip.
+  3. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
+     out along the surface normal (only when the head is a sphere or ellipsoid).
 
 Positions are metres; arrays are [strand, node, xyz]; node 0 is the root.
 """
 
+from collections import Counter
 from dataclasses import dataclass
 import math
 import time
@@ -125,6 +126,8 @@ def delaunay(points) -> np.ndarray:
     lo, span = pts.min(0), np.ptp(pts, axis=0).max()
     if len(pts) < 3 or not span > 0:
         raise ValueError(f"points must hold at least 3 distinct 2D points, got {len(pts)}")
+    if len(np.unique(pts, axis=0)) < len(pts):
+        raise ValueError("points must be distinct, got duplicates")
     p = np.concatenate([(pts - lo) / span, [[-1e4, -1e4], [3e4, -1e4], [-1e4, 3e4]]])
     m = len(pts)
     tri = np.array([[m, m + 1, m + 2]])
@@ -148,13 +151,9 @@ def delaunay(points) -> np.ndarray:
 def _cavity_boundary(p, tri, bad, i):
     """Boundary edges (a, b) of the cavity `bad` (grown in place until every edge sees p[i])."""
     for _ in range(len(tri)):
-        count = {}
-        for a, b, c in tri[bad]:
-            for e in ((a, b), (b, c), (c, a)):
-                key = (min(e), max(e))
-                count[key] = count.get(key, 0) + 1
-        edges = [e for a, b, c in tri[bad] for e in ((a, b), (b, c), (c, a))
-                 if count[(min(e), max(e))] == 1]
+        edges = [e for a, b, c in tri[bad].tolist() for e in ((a, b), (b, c), (c, a))]
+        count = Counter(frozenset(e) for e in edges)  # an interior edge is shared by two
+        edges = [e for e in edges if count[frozenset(e)] == 1]
         hidden = [e for e in edges if _orient(p[e[0]], p[e[1]], p[i]) <= 0.0]
         if not hidden:
             return edges
@@ -189,10 +188,12 @@ def _nearest_in_triangle(x, a, b, c):
     """(distance, barycentric weights) of the point of triangle abc nearest to x (2D)."""
     ab, ac, ax = b - a, c - a, x - a
     det = ab[0] * ac[1] - ab[1] * ac[0]
+    flat = det <= 0.0  # a sliver flattened by round-off: only its edges count
+    det = ti.select(flat, 1.0, det)
     wb = (ax[0] * ac[1] - ax[1] * ac[0]) / det
     wc = (ab[0] * ax[1] - ab[1] * ax[0]) / det
     dist, w = 0.0, vec3(1.0 - wb - wc, wb, wc)
-    if ti.min(w[0], w[1], w[2]) < 0.0:
+    if flat or ti.min(w[0], w[1], w[2]) < 0.0:
         dist = 1e30
         for k in ti.static(range(3)):
             s, e = ti.static(k, (k + 1) % 3)
@@ -366,6 +367,9 @@ class Interpolator:
         (in [0, 1)); curl_phase_variation: each strand starts up to this many edges into the
         guides' shape (in [0, (n_nodes - 1) / 2]), which shifts the phase of curls.
     seed: seeds all per-strand variation.
+    Keep clump offsets (root spacing, clump_radius) well below the guides' radius of curvature:
+    an offset d carried in the frame of a curve of curvature k scales the strand's curvature
+    by 1 / (1 - k d cos(angle)), so a clump wider than a curl is no longer a ringlet.
     head: None; a sphere or ellipsoid (centre [3] m, radius m or semi-axes [3] m, axis-aligned
         at rest), which pushes non-root nodes out to its surface + head_margin [m] in a kernel;
         or a callable mapping points [M, 3] to pushed points [M, 3] (runs on the host).
@@ -382,7 +386,10 @@ class Interpolator:
         self._dtype = np.float32 if precision() == "float32" else np.float64
         centre = None if self._ellipsoid is None else self._ellipsoid[0]
         chart = ScalpChart.fit(roots, normals, centre)
-        self.triangles = delaunay(chart.project(roots, "guide_roots"))
+        try:
+            self.triangles = delaunay(chart.project(roots, "guide_roots"))
+        except ValueError as exc:
+            raise ValueError(f"guide_roots cannot be triangulated on the scalp: {exc}") from None
         tri_of, weights = self._locate(chart.project(dense, "dense_roots"), chart.project(roots))
         corners = self.triangles[tri_of]
         nearest = _nearest(dense, roots)
@@ -601,14 +608,11 @@ def sample_scalp_roots(n, *, radius=0.1, centre=(0.0, 0.0, 0.0), max_polar_deg=7
 
 def _curly_guides(roots, normals, n_nodes, length=0.2, curl_radius=0.01, pitch=0.02):
     """Helices [G, n_nodes, 3] (m) growing along the normals from the roots (benchmark data)."""
-    side = _perpendicular(normals)
-    side2 = np.cross(normals, side)
     rise = pitch / (2 * math.pi)
-    s = np.linspace(0.0, length, n_nodes) / math.hypot(curl_radius, rise)
-    a = curl_radius * (np.cos(s) - 1.0)
-    b, h = curl_radius * np.sin(s), rise * s
-    return (roots[:, None] + a[None, :, None] * side[:, None] + b[None, :, None] * side2[:, None]
-            + h[None, :, None] * normals[:, None])
+    s = (np.linspace(0.0, length, n_nodes) / math.hypot(curl_radius, rise))[None, :, None]
+    side = _perpendicular(normals)[:, None]
+    return (roots[:, None] + curl_radius * (np.cos(s) - 1.0) * side + rise * s * normals[:, None]
+            + curl_radius * np.sin(s) * np.cross(normals[:, None], side))
 
 
 def bench_interpolation(n_dense=100_000, n_nodes=32, n_guides=1000, repeats=5) -> dict:
@@ -646,10 +650,8 @@ def _main(argv=None):
     import argparse
     from .runtime import init
     parser = argparse.ArgumentParser(description="Benchmark dense hair interpolation.")
-    parser.add_argument("--n-dense", type=int, default=100_000)
-    parser.add_argument("--n-nodes", type=int, default=32)
-    parser.add_argument("--n-guides", type=int, default=1000)
-    parser.add_argument("--repeats", type=int, default=5)
+    for name, default in (("n-dense", 100_000), ("n-nodes", 32), ("n-guides", 1000), ("repeats", 5)):
+        parser.add_argument(f"--{name}", type=int, default=default)
     parser.add_argument("--arch", default="cpu")
     parser.add_argument("--precision", default="float32")
     args = parser.parse_args(argv)

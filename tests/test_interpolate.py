@@ -332,6 +332,9 @@ def test_bad_inputs_raise_value_errors_naming_them():
         Interpolator(roots, normals[:9], random_cap(5), 8)
     with pytest.raises(ValueError, match="n_nodes must be an integer >= 3"):
         Interpolator(roots, normals, random_cap(5), 2)
+    with pytest.raises(ValueError, match="guide_roots cannot be triangulated.*duplicates"):
+        Interpolator(np.concatenate([roots, roots[:1]]), np.concatenate([normals, normals[:1]]),
+                     random_cap(5), 8)
     interp = Interpolator(roots, normals, random_cap(5), 8)
     with pytest.raises(ValueError, match=r"guide_positions must have shape \[10, 8, 3\]"):
         interp.interpolate(np.zeros((10, 7, 3)))
@@ -347,3 +350,35 @@ def test_bench_reports_positive_timings():
     r = bench_interpolation(n_dense=400, n_nodes=8, n_guides=30, repeats=2)
     assert r["n_dense"] == 400 and r["ms_per_frame_ndarray"] > 0 and r["ms_per_frame_numpy"] > 0
     assert r["first_call_s"] >= r["ms_per_frame_ndarray"] / 1e3 * 0.5
+
+
+FLOAT32_SCRIPT = """
+import numpy as np, taichi_hair as th
+th.init("cpu", "float32")
+from taichi_hair.interpolate import Interpolator, sample_scalp_roots
+roots, normals = sample_scalp_roots(30, max_polar_deg=60.0)
+s = np.linspace(0.0, 0.25, 24)[None, :, None]
+guides = roots[:, None] + s * np.array([0.3, 0.0, -1.0]) / np.hypot(0.3, 1.0)  # into the head
+dense = np.concatenate([roots[[2, 11]], sample_scalp_roots(500, max_polar_deg=55.0)[0]])
+interp = Interpolator(roots, normals, dense, 24, mode="blend", head=((0, 0, 0), 0.1), head_margin=0.002)
+out = interp.interpolate(guides)
+assert out.dtype == np.float32, out.dtype
+err = np.abs(out[:2, 1:] - interp.interpolate(guides)[:2, 1:]).max()
+gap = np.linalg.norm(out[:, 1:].astype(np.float64), axis=2).min() - 0.102
+free = Interpolator(roots, normals, dense[:2], 24, mode="blend").interpolate(guides)
+print(np.abs(free - guides[[2, 11]]).max(), gap, err)
+"""
+
+
+def test_float32_process_reproduces_guides_and_keeps_the_margin():
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-c", FLOAT32_SCRIPT], cwd=root, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    reproduce, gap, repeat = map(float, run.stdout.split()[-3:])
+    assert reproduce < 1e-6  # metres, float32 round-off on 0.25 m strands
+    assert gap > -1e-6 and repeat == 0.0
