@@ -12,8 +12,9 @@
       bit 3  transparency  float32 [points]
       bit 4  colour        float32 [points, 3]
 
-The format has no unit; Yuksel's published models are in centimetres with y up, so multiply by
-0.01 (see `HairFile.strands(scale=...)`) to get the metres the simulator uses. Readers keep the
+The format has no unit: check a model's extent (Yuksel's published models are head-sized in
+centimetre-scale units) and scale to the metres the simulator uses with
+`HairFile.strands(scale=0.01)`; no axis convention is imposed either. Readers keep the
 float32 values and the raw header bytes as stored, so `write_hair(read_hair(f))` rewrites `f`
 byte for byte.
 
