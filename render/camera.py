@@ -143,6 +143,12 @@ class OrthoView:
 
 
 @ti.func
+def unit(v: vec3f) -> vec3f:
+    """v / |v| in float32 (Vector.normalized promotes to the process's default float)."""
+    return v * ti.rsqrt(ti.max(v.dot(v), f32(1e-24)))
+
+
+@ti.func
 def project(view: mat4f, proj: vec4f, p: vec3f) -> vec4f:
     """World point p [m] -> (sx, sy [pixels], depth [m], inv_w), see the module docstring."""
     c = view @ vec4f(p[0], p[1], p[2], f32(1.0))

@@ -70,6 +70,11 @@ def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
 
 
 @ti.func
+def pixel_centre(px: ti.i32, py: ti.i32) -> vec2f:
+    return vec2f(ti.cast(px, f32) + f32(0.5), ti.cast(py, f32) + f32(0.5))
+
+
+@ti.func
 def edge(a: vec2f, b: vec2f, p: vec2f) -> f32:
     """Twice the signed area of (a, b, p)."""
     return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
@@ -102,16 +107,16 @@ def raster_triangles(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
     for f in range(n):
         a, b, c = screen[faces[f][0]], screen[faces[f][1]], screen[faces[f][2]]
         area = edge(vec2f(a[0], a[1]), vec2f(b[0], b[1]), vec2f(c[0], c[1]))
-        if ti.min(a[2], b[2], c[2]) > near and ti.abs(area) > 1e-12:
-            x0 = ti.max(ti.cast(ti.ceil(ti.min(a[0], b[0], c[0]) - 0.5), ti.i32), 0)
-            x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0], c[0]) - 0.5), ti.i32), width - 1)
-            y0 = ti.max(ti.cast(ti.ceil(ti.min(a[1], b[1], c[1]) - 0.5), ti.i32), 0)
-            y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1], c[1]) - 0.5), ti.i32), height - 1)
+        if ti.min(a[2], b[2], c[2]) > near and ti.abs(area) > f32(1e-12):
+            x0 = ti.max(ti.cast(ti.ceil(ti.min(a[0], b[0], c[0]) - f32(0.5)), ti.i32), 0)
+            x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0], c[0]) - f32(0.5)), ti.i32), width - 1)
+            y0 = ti.max(ti.cast(ti.ceil(ti.min(a[1], b[1], c[1]) - f32(0.5)), ti.i32), 0)
+            y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1], c[1]) - f32(0.5)), ti.i32), height - 1)
             for py in range(y0, y1 + 1):
                 for px in range(x0, x1 + 1):
-                    p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+                    p = pixel_centre(px, py)
                     w = barycentric(a, b, c, p)
-                    if w[0] >= 0.0 and w[1] >= 0.0 and w[2] >= 0.0:
+                    if w[0] >= f32(0.0) and w[1] >= f32(0.0) and w[2] >= f32(0.0):
                         q = perspective_weights(a, b, c, w)
                         depth = q[0] * a[2] + q[1] * b[2] + q[2] * c[2]
                         ti.atomic_min(key[py, px], pack(depth, f))
@@ -124,9 +129,9 @@ def coverage(p: vec2f, a: vec4f, b: vec4f, wa: f32, wb: f32) -> vec2f:
     dx, dy = b[0] - a[0], b[1] - a[1]
     l2 = dx * dx + dy * dy
     cov, t = f32(0.0), f32(0.0)
-    if l2 > 1e-12:
+    if l2 > f32(1e-12):
         t = ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2
-        if t >= 0.0 and t < 1.0:
+        if t >= f32(0.0) and t < f32(1.0):
             d = ti.sqrt((a[0] + t * dx - p[0]) ** 2 + (a[1] + t * dy - p[1]) ** 2)
             half = f32(0.5) * (wa + t * (wb - wa))
             cov = ti.math.clamp(ti.min(d + half, f32(0.5)) - ti.max(d - half, f32(-0.5)),
@@ -139,7 +144,7 @@ def fragment(e: ti.i32, px: ti.i32, py: ti.i32, seg: ti.template(), screen: ti.t
              width_px: ti.template(), rgba: ti.template()) -> vec4f:
     """(linear rgb, alpha) of hair segment e at pixel (px, py)."""
     i = seg[e]
-    p = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+    p = pixel_centre(px, py)
     cv = coverage(p, screen[i], screen[i + 1], width_px[i], width_px[i + 1])
     c = rgba[i] * (f32(1.0) - cv[1]) + rgba[i + 1] * cv[1]
     return vec4f(c[0], c[1], c[2], cv[0] * c[3])
@@ -176,9 +181,9 @@ def hair_pixel(e: ti.i32, px: ti.i32, py: ti.i32, a: vec4f, b: vec4f, seg: ti.te
     """Fragment of segment e (screen endpoints a, b) at pixel (px, py): depth-test against the
     meshes, insert into the k-buffer, send whatever falls out to the tail."""
     i = seg[e]
-    p = vec2f(ti.cast(px, f32) + f32(0.5), ti.cast(py, f32) + f32(0.5))
+    p = pixel_centre(px, py)
     cv = coverage(p, a, b, width_px[i], width_px[i + 1])
-    if cv[0] > 0.0:
+    if cv[0] > f32(0.0):
         t = cv[1]
         inv_w = a[3] + t * (b[3] - a[3])
         depth = (a[2] * a[3] + t * (b[2] * b[3] - a[2] * a[3])) / inv_w
@@ -214,7 +219,7 @@ def raster_hair(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
         size_m, size_n = ti.select(xmajor, width, height), ti.select(xmajor, height, width)
         dm, dn = bm - am, bn - an
         length = ti.sqrt(dm * dm + dn * dn)
-        if ti.min(a[2], b[2]) > near and length > 1e-6:
+        if ti.min(a[2], b[2]) > near and length > f32(1e-6):
             # pixel centres with non-zero coverage lie within `reach` of the centre line
             reach = f32(0.5) * ti.max(width_px[i], width_px[i + 1]) + f32(0.5)
             ext_m = reach * ti.abs(dn) / length
@@ -265,7 +270,7 @@ def encode_srgb(linear: f32) -> ti.u8:
     c = ti.math.clamp(linear, f32(0.0), f32(1.0))
     s = f32(12.92) * c
     if c > 0.0031308:
-        s = f32(1.055) * ti.pow(c, f32(1.0 / 2.4)) - f32(0.055)
+        s = f32(1.055) * ti.exp(f32(1.0 / 2.4) * ti.log(c)) - f32(0.055)
     return ti.cast(s * f32(255.0) + f32(0.5), ti.u8)
 
 

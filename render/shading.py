@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from .camera import f32, mat4f, vec3f, vec4f
+from .camera import f32, mat4f, unit, vec3f, vec4f
 from .geometry import _colour, srgb_to_linear
-from .raster import barycentric, empty_key, key_prim, perspective_weights, vec2f, vec3i
+from .raster import barycentric, empty_key, key_prim, perspective_weights, pixel_centre, vec3i
 from .runtime import buffer, ensure_init, upload
 from .shadows import transmittance
 
@@ -103,16 +103,22 @@ class HairShading:
 
 
 @ti.func
+def powf(x: f32, y: f32) -> f32:
+    """x^y for x >= 0 in float32 (ti.pow promotes to the process's default float)."""
+    return ti.select(x > 0.0, ti.exp(y * ti.log(ti.max(x, f32(1e-30)))), f32(0.0))
+
+
+@ti.func
 def lobe(t: vec3f, h: vec3f, shift: f32, exponent: f32) -> f32:
     """cos(theta_h - shift)^exponent with theta_h = asin(T.H), clamped at 0."""
     theta_h = ti.asin(ti.math.clamp(t.dot(h), f32(-1.0), f32(1.0)))
-    return ti.pow(ti.max(ti.cos(theta_h - shift), f32(0.0)), exponent)
+    return powf(ti.max(ti.cos(theta_h - shift), f32(0.0)), exponent)
 
 
 @ti.func
 def kajiya_kay_terms(t: vec3f, l: vec3f, v: vec3f, kk: vec8f) -> vec3f:
     """(diffuse sin(T, L), primary lobe, secondary lobe), unscaled by strengths."""
-    h = (l + v).normalized(f32(1e-12))
+    h = unit(l + v)
     sin_tl = ti.sqrt(ti.max(f32(1.0) - t.dot(l) ** 2, f32(0.0)))
     return vec3f(sin_tl, lobe(t, h, kk[3], kk[2]), lobe(t, h, kk[6], kk[5]))
 
@@ -137,8 +143,8 @@ def shade_surface(n: vec3f, l: vec3f, v: vec3f, albedo: vec3f, light: vec3f, amb
     n_l = nf.dot(l)
     direct = vec3f(0.0, 0.0, 0.0)
     if n_l > 0.0:
-        h = (l + v).normalized(f32(1e-12))
-        spec = specular * ti.pow(ti.max(nf.dot(h), f32(0.0)), shininess)
+        h = unit(l + v)
+        spec = specular * powf(ti.max(nf.dot(h), f32(0.0)), shininess)
         direct = light * (albedo * n_l + spec) * shadow
     return albedo * ambient + direct
 
@@ -153,8 +159,8 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
     """rgba[i] = (linear radiance of vertex i, opacity). Tangent from the strand neighbours.
     Shapes (V,). One thread per vertex."""
     for i in range(n):
-        t = (x[nbr[i][1]] - x[nbr[i][0]]).normalized(f32(1e-12))
-        v = (eye - x[i]).normalized(f32(1e-12))
+        t = unit(x[nbr[i][1]] - x[nbr[i][0]])
+        v = unit(eye - x[i])
         c = shade_hair(t, to_light, v, albedo[i], light, ambient, shadow[i], kk)
         rgba[i] = vec4f(c[0], c[1], c[2], opacity)
 
@@ -163,7 +169,7 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
 def _kk_terms_kernel(n: ti.i32, t: ti.types.ndarray(dtype=vec3f, ndim=1), l: vec3f, v: vec3f,
                      kk: vec8f, out: ti.types.ndarray(dtype=vec3f, ndim=1)):
     for i in range(n):
-        out[i] = kajiya_kay_terms(t[i].normalized(f32(1e-12)), l, v, kk)
+        out[i] = kajiya_kay_terms(unit(t[i]), l, v, kk)
 
 
 def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading()) -> dict:
@@ -175,9 +181,9 @@ def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading())
     """
     ensure_init()
     t = np.atleast_2d(np.asarray(tangents, dtype=np.float32))
-    unit = lambda a: (np.asarray(a, float) / np.linalg.norm(a)).astype(np.float32)
+    unit_np = lambda a: (np.asarray(a, float) / np.linalg.norm(a)).astype(np.float32)
     out = buffer("kk_out", vec3f, (len(t),), 3)
-    _kk_terms_kernel(len(t), upload("kk_t", t, vec3f, 3), unit(to_light), unit(to_eye),
+    _kk_terms_kernel(len(t), upload("kk_t", t, vec3f, 3), unit_np(to_light), unit_np(to_eye),
                      shading.packed(), out)
     r = out.to_numpy()
     return {"diffuse": r[:, 0], "primary": r[:, 1], "secondary": r[:, 2]}
@@ -207,12 +213,12 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
         if key != empty_key():
             f = key_prim(key)
             ia, ib, ic = faces[f][0], faces[f][1], faces[f][2]
-            p2 = vec2f(ti.cast(px, f32) + 0.5, ti.cast(py, f32) + 0.5)
+            p2 = pixel_centre(px, py)
             w = barycentric(screen[ia], screen[ib], screen[ic], p2)
             q = perspective_weights(screen[ia], screen[ib], screen[ic], w)
             p = q[0] * x[ia] + q[1] * x[ib] + q[2] * x[ic]
-            n = (q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic]).normalized(f32(1e-12))
-            v = (eye - p).normalized(f32(1e-12))
+            n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
+            v = unit(eye - p)
             n_eye = ti.select(n.dot(v) < 0.0, -n, n)
             shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
                                    opacity, bounds, smesh_key, sparams)

@@ -74,9 +74,9 @@ class ShadowMap(NamedTuple):
 def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
                  opacity: ti.types.ndarray(dtype=f32, ndim=3)):
     for i, j in z0:
-        z0[i, j] = 3.0e38
+        z0[i, j] = f32(3.0e38)
         for k in range(opacity.shape[2]):
-            opacity[i, j, k] = 0.0
+            opacity[i, j, k] = f32(0.0)
 
 
 @ti.func
@@ -115,7 +115,7 @@ def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
     size = z0.shape[0]
     for e in range(n):
         a, b = screen[seg[e]], screen[seg[e] + 1]
-        ns = ti.max(1, ti.cast(ti.ceil((b - a).xy.norm()), ti.i32))
+        ns = ti.max(1, ti.cast(ti.ceil(ti.sqrt((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2)), ti.i32))
         for s in range(ns):
             p = a + (b - a) * ((ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32))
             i, j = texel_of(p, size)
@@ -137,7 +137,7 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
     for e in range(n):
         k = seg[e]
         a, b = screen[k], screen[k + 1]
-        length = (b - a).xy.norm()
+        length = ti.sqrt((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2)
         ns = ti.max(1, ti.cast(ti.ceil(length), ti.i32))
         for s in range(ns):
             t = (ti.cast(s, f32) + f32(0.5)) / ti.cast(ns, f32)

@@ -43,7 +43,7 @@ def write_png(path, image) -> Path:
 def read_png(path, shape: tuple | None = None) -> np.ndarray | None:
     """The PNG at path as (H, W, 3) uint8, or None if missing, unreadable or not of `shape`."""
     try:
-        a = np.asarray(imageio.imread(path))
+        a = np.asarray(imageio.imread(path, format="png"))
     except Exception:  # a truncated or foreign file is just "not a valid frame"
         return None
     if a.ndim != 3 or a.shape[2] < 3 or (shape is not None and a.shape[:2] != tuple(shape)):

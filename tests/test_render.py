@@ -1,0 +1,290 @@
+"""Offscreen renderer: depth order, coverage, shading, shadows, meshes, video.
+
+Small frames (64 x 48 unless stated) on the CPU. Colour checks use flat lighting (ambient 1,
+no key light, no highlights) where the expected linear colour is then exactly the albedo.
+"""
+
+import numpy as np
+import pytest
+import taichi as ti
+
+import render
+from render import (Camera, Hair, HairShading, Light, Lighting, Mesh, RenderSettings,
+                    ShadowSettings, Turntable)
+from render.geometry import srgb_to_linear
+
+W, H = 64, 48
+FRONT = Camera(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0), fov_y=40.0, width=W, height=H)
+BACK = Camera(eye=(0.0, 0.0, -1.0), target=(0.0, 0.0, 0.0), fov_y=40.0, width=W, height=H)
+FLAT = Lighting(key=Light(intensity=0.0), ambient=(1.0, 1.0, 1.0), ambient_intensity=1.0)
+NO_SPEC = HairShading(primary_strength=0.0, secondary_strength=0.0)
+RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+
+
+def flat_settings(layers=4, shadows=False, **kw):
+    return RenderSettings(layers=layers, hair_shading=NO_SPEC,
+                          shadows=ShadowSettings(enabled=shadows), **kw)
+
+
+def px_width(camera, depth, pixels):
+    """World width [m] that projects to `pixels` at `depth` [m]."""
+    return pixels * camera.metres_per_pixel(depth)
+
+
+def line(p0, p1, n=5):
+    return np.linspace(p0, p1, n)
+
+
+def crossing(z_red, z_blue, width_px=4.0):
+    """A red horizontal and a blue vertical strand crossing on the view axis."""
+    pts = np.stack([line((-0.2, 0.0, z_red), (0.2, 0.0, z_red)),
+                    line((0.0, -0.2, z_blue), (0.0, 0.2, z_blue))])
+    w = px_width(FRONT, 1.0, width_px)
+    return Hair(points=pts, colours=np.array([RED, BLUE]), widths=w)
+
+
+# -- depth order ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("layers", [1, 4])
+@pytest.mark.parametrize("camera, z_red, z_blue, winner", [
+    (FRONT, 0.05, -0.05, RED), (FRONT, -0.05, 0.05, BLUE),
+    (BACK, 0.05, -0.05, BLUE), (BACK, -0.05, 0.05, RED)])
+def test_nearer_strand_wins_at_crossing(layers, camera, z_red, z_blue, winner):
+    out = render.render_buffers(camera, hair=crossing(z_red, z_blue), lighting=FLAT,
+                                settings=flat_settings(layers))
+    centre = out["rgb"][H // 2 - 1:H // 2 + 1, W // 2 - 1:W // 2 + 1].reshape(-1, 3)
+    np.testing.assert_allclose(centre, np.tile(winner, (4, 1)), atol=0.02)
+    # both strands are drawn away from the crossing
+    assert out["rgb"][H // 2, W // 2 - 8, 0] > 0.9 and out["rgb"][H // 2 - 8, W // 2, 2] > 0.9
+
+
+# -- anti-aliasing ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("w", [0.3, 0.5, 1.0, 1.5, 2.0, 3.0])
+def test_horizontal_line_covers_its_width_per_column(w):
+    # centre line 0.3 px below a pixel row boundary: coverage must split over rows
+    y = (H / 2 - (H / 2 + 0.3)) * FRONT.metres_per_pixel(1.0)
+    hair = Hair(points=[line((-0.3, y, 0.0), (0.3, y, 0.0), 7)], colours=RED,
+                widths=px_width(FRONT, 1.0, w))
+    alpha = render.render_buffers(FRONT, hair=hair, lighting=FLAT,
+                                  settings=flat_settings())["alpha"]
+    columns = alpha[:, 16:W - 16].sum(axis=0)
+    # box-filtered coverage: within 10 % of w in every column, joints included
+    np.testing.assert_allclose(columns, w, rtol=0.10)
+    # a sub-pixel fibre is a faint line, never a fully opaque pixel
+    assert alpha.max() <= min(w, 1.0) + 1e-4
+
+
+def test_sloped_line_coverage_scales_with_secant():
+    w, slope = 1.0, np.tan(np.radians(30.0))
+    hair = Hair(points=[line((-0.25, -0.25 * slope, 0.0), (0.25, 0.25 * slope, 0.0), 6)],
+                colours=RED, widths=px_width(FRONT, 1.0, w))
+    alpha = render.render_buffers(FRONT, hair=hair, lighting=FLAT,
+                                  settings=flat_settings())["alpha"]
+    columns = alpha[:, 20:W - 20].sum(axis=0)
+    assert columns.mean() == pytest.approx(w / np.cos(np.radians(30.0)), rel=0.10)
+
+
+# -- shading -----------------------------------------------------------------------------
+
+def _sweep(shading, n=721):
+    """Tangents in the x-z plane against a fixed light and eye; returns angles, terms, phi0
+    (the angle where T is perpendicular to H)."""
+    phi = np.linspace(-np.pi / 2, np.pi / 2, n)
+    t = np.stack([np.cos(phi), np.zeros_like(phi), np.sin(phi)], axis=1)
+    l = np.array([0.0, 0.0, 1.0])
+    v = np.array([np.sin(np.radians(50.0)), 0.0, np.cos(np.radians(50.0))])
+    h = (l + v) / np.linalg.norm(l + v)
+    phi0 = np.arctan2(-h[0], h[2])  # T(phi0) . h = 0
+    return phi, render.kajiya_kay(t, l, v, shading), phi0, t, l
+
+
+def test_kajiya_kay_highlight_peaks_where_tangent_perpendicular_to_half_vector():
+    phi, kk, phi0, t, l = _sweep(HairShading(primary_shift=0.0, secondary_shift=0.0))
+    step = phi[1] - phi[0]
+    assert abs(phi[np.argmax(kk["primary"])] - phi0) <= step
+    assert kk["primary"].max() == pytest.approx(1.0, abs=1e-4)
+    assert kk["primary"].min() < 0.01  # a real lobe, not a constant
+    np.testing.assert_allclose(kk["diffuse"], np.sqrt(1.0 - (t @ l) ** 2), atol=1e-5)
+
+
+def test_kajiya_kay_shifted_lobes_move_by_their_shift():
+    shading = HairShading(primary_shift=-6.0, secondary_shift=9.0)
+    phi, kk, phi0, _, _ = _sweep(shading)
+    step = phi[1] - phi[0]
+    # theta_h = asin(T.H) grows with phi here, so a lobe at theta_h = s peaks at phi0 + s
+    assert abs(phi[np.argmax(kk["primary"])] - (phi0 - np.radians(6.0))) <= 1.5 * step
+    assert abs(phi[np.argmax(kk["secondary"])] - (phi0 + np.radians(9.0))) <= 1.5 * step
+    # the TRT lobe is broader than the R lobe
+    assert (kk["secondary"] > 0.5).sum() > (kk["primary"] > 0.5).sum()
+
+
+def test_mesh_lambert_matches_cosine_law():
+    quad = Mesh(vertices=[(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)],
+                faces=[(0, 1, 2), (0, 2, 3)], colours=(0.5, 0.5, 0.5), specular=0.0)
+    albedo = srgb_to_linear(0.5)
+    for degrees in (0.0, 60.0):
+        a = np.radians(degrees)
+        lighting = Lighting(key=Light(to_light=(np.sin(a), 0.0, np.cos(a)), colour=(1, 1, 1),
+                                      intensity=1.0), ambient_intensity=0.0)
+        rgb = render.render_buffers(FRONT, meshes=[quad], lighting=lighting,
+                                    settings=flat_settings())["rgb"]
+        np.testing.assert_allclose(rgb[H // 2, W // 2], albedo * np.cos(a), rtol=1e-3)
+
+
+# -- shadows -----------------------------------------------------------------------------
+
+def _two_sheets():
+    """Two sheets of vertical strands, one in front of the other along +z (the light)."""
+    x = np.linspace(-0.05, 0.05, 60)
+    sheet = lambda z: [line((xi, -0.1, z), (xi, 0.1, z), 9) for xi in x]
+    return Hair(points=sheet(0.02) + sheet(-0.02), colours=(0.6, 0.5, 0.4), widths=1e-3), len(x)
+
+
+LIGHT_Z = Lighting(key=Light(to_light=(0.0, 0.0, 1.0), colour=(1, 1, 1), intensity=1.0),
+                   ambient_intensity=0.05)
+
+
+def test_hair_behind_hair_is_in_shadow():
+    hair, n = _two_sheets()
+    t = render.hair_shadow(hair, lighting=LIGHT_Z).reshape(2, n, 9)
+    assert t[0].mean() > 0.9          # the sheet facing the light is lit
+    assert t[1].mean() < 0.6          # the sheet behind it is not
+    off = render.hair_shadow(hair, lighting=LIGHT_Z, shadows=ShadowSettings(enabled=False))
+    np.testing.assert_array_equal(off, 1.0)
+
+
+def test_shadowed_strands_render_darker():
+    hair, _ = _two_sheets()
+    side = Camera(eye=(1.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), fov_y=20.0, width=W, height=H)
+    z_px = side.project([(0.0, 0.0, 0.02), (0.0, 0.0, -0.02)])[:, 0].astype(int)
+    rows = slice(H // 2 - 8, H // 2 + 8)
+    lum = {}
+    for on in (True, False):
+        rgb = render.render_buffers(side, hair=hair, lighting=LIGHT_Z,
+                                    settings=flat_settings(shadows=on), background=(0, 0, 0))["rgb"]
+        lum[on] = [rgb[rows, z - 1:z + 2].sum(axis=-1).mean() for z in z_px]
+    assert lum[False][1] > 0.1                      # the back sheet is visible and lit without
+    assert lum[True][1] < 0.7 * lum[False][1]       # darker with shadows
+    assert lum[True][0] == pytest.approx(lum[False][0], rel=0.1)  # front sheet unchanged
+
+
+def test_hair_shadows_the_mesh():
+    quad = Mesh(vertices=[(-0.3, -0.3, 0), (0.3, -0.3, 0), (0.3, 0.3, 0), (-0.3, 0.3, 0)],
+                faces=[(0, 1, 2), (0, 2, 3)], colours=(0.7, 0.7, 0.7), specular=0.0)
+    # light from 45 degrees to +x: a dense sheet at x = 0.1, z = 0.05 shades x ~ 0.05 on the quad
+    x = np.linspace(0.08, 0.12, 40)
+    hair = Hair(points=[line((xi, -0.2, 0.05), (xi, 0.2, 0.05), 9) for xi in x], widths=1e-3)
+    lighting = Lighting(key=Light(to_light=(1.0, 0.0, 1.0), colour=(1, 1, 1), intensity=1.0),
+                        ambient_intensity=0.0)
+    sx = FRONT.project([(0.05, 0.0, 0.0), (-0.1, 0.0, 0.0)])[:, 0].astype(int)
+    lum = {}
+    for on in (True, False):
+        rgb = render.render_buffers(FRONT, hair=hair, meshes=[quad], lighting=lighting,
+                                    settings=flat_settings(shadows=on))["rgb"]
+        lum[on] = [rgb[H // 2, s].sum() for s in sx]
+    assert lum[False][0] == pytest.approx(lum[False][1], rel=0.02)  # same Lambert term
+    assert lum[True][0] < 0.5 * lum[False][0]                        # under the hair
+    assert lum[True][1] == pytest.approx(lum[False][1], rel=0.02)    # away from it
+
+
+# -- meshes and depth --------------------------------------------------------------------
+
+def _quad(z, half, colour):
+    v = [(-half, -half, z), (half, -half, z), (half, half, z), (-half, half, z)]
+    return Mesh(vertices=v, faces=[(0, 1, 2), (0, 2, 3)], colours=colour, specular=0.0)
+
+
+@pytest.mark.parametrize("order", [0, 1])
+def test_near_triangle_occludes_far(order):
+    meshes = [_quad(0.1, 0.05, RED), _quad(0.0, 0.2, BLUE)]
+    rgb = render.render_buffers(FRONT, meshes=meshes[::1 if order else -1], lighting=FLAT,
+                                settings=flat_settings())["rgb"]
+    np.testing.assert_allclose(rgb[H // 2, W // 2], RED, atol=1e-3)
+    np.testing.assert_allclose(rgb[H // 2, W // 2 + 12], BLUE, atol=1e-3)
+
+
+@pytest.mark.parametrize("z, visible", [(0.05, True), (-0.05, False)])
+def test_hair_in_front_of_mesh_drawn_behind_hidden(z, visible):
+    hair = Hair(points=[line((-0.2, 0.0, z), (0.2, 0.0, z))], colours=RED,
+                widths=px_width(FRONT, 1.0, 3.0))
+    out = render.render_buffers(FRONT, hair=hair, meshes=[_quad(0.0, 0.3, BLUE)], lighting=FLAT,
+                                settings=flat_settings())
+    row = out["rgb"][H // 2 - 1:H // 2 + 1, 20:W - 20].reshape(-1, 3)
+    if visible:
+        assert out["alpha"][H // 2 - 1:H // 2 + 1, 20:W - 20].min() > 0.99
+        np.testing.assert_allclose(row, np.tile(RED, (len(row), 1)), atol=0.01)
+    else:
+        assert out["alpha"].max() == 0.0
+        np.testing.assert_allclose(row, np.tile(BLUE, (len(row), 1)), atol=1e-3)
+
+
+# -- output -----------------------------------------------------------------------------
+
+def test_frame_is_uint8_srgb_of_camera_size():
+    cam = Camera(eye=(0, 0, 1), target=(0, 0, 0), width=37, height=21)
+    img = render.render_frame(cam, meshes=[_quad(0.0, 1.0, (0.5, 0.5, 0.5))], lighting=FLAT,
+                              settings=flat_settings(supersample=2), background=(0, 0, 0))
+    assert img.shape == (21, 37, 3) and img.dtype == np.uint8
+    assert np.all(np.abs(img.astype(int) - 128) <= 1)  # sRGB 0.5 round-trips through linear
+
+
+def test_write_mp4_keeps_odd_size(tmp_path):
+    frames = [np.full((25, 33, 3), 40 * k, np.uint8) for k in range(4)]
+    path = render.write_mp4(tmp_path / "odd.mp4", frames, fps=10)
+    import imageio.v2 as imageio
+    got = [f for f in imageio.get_reader(path)]  # list() asks len(): inf for video
+    assert len(got) == 4 and got[0].shape == (25, 33, 3)
+    assert [round(float(g.mean()) / 40) for g in got] == [0, 1, 2, 3]
+
+
+def test_turntable_writes_mp4_and_resumes(tmp_path):
+    import imageio.v2 as imageio
+    calls = []
+    strands = np.stack([line((-0.2, y, 0.0), (0.2, y, 0.0)) for y in (-0.05, 0.0, 0.05)])
+
+    def scene(frame):
+        calls.append(frame)
+        return strands, (0.5, 0.3, 0.1), 2e-3, [_quad(-0.1, 0.3, (0.6, 0.6, 0.6))]
+
+    cam = Camera(eye=(0, 0, 1), target=(0, 0, 0), width=48, height=32)
+    shot = Turntable(frames=6, degrees=90.0, fps=12)
+    first = render.turntable(tmp_path, scene, cam, shot=shot, progress=False)
+    assert calls == list(range(6)) and first["rendered"] == list(range(6))
+    frames = [f for f in imageio.get_reader(first["video"])]
+    assert len(frames) == 6 and frames[0].shape == (32, 48, 3)
+    assert np.abs(frames[0].astype(int) - frames[3].astype(int)).mean() > 1.0  # it turns
+
+    kept = imageio.imread(first["frames"][2])
+    first["frames"][2].unlink()
+    first["frames"][4].unlink()
+    first["frames"][5].write_bytes(b"not a png")   # a frame cut short by a kill
+    calls.clear()
+    second = render.turntable(tmp_path, scene, cam, shot=shot, progress=False)
+    assert calls == [2, 4, 5] and second["rendered"] == [2, 4, 5]
+    assert imageio.get_reader(second["video"]).count_frames() == 6
+    assert np.abs(imageio.imread(second["frames"][2]).astype(int) - kept).max() <= 2
+
+
+# -- boundaries --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("make, name", [
+    (lambda: Camera(fov_y=190.0), "fov_y"),
+    (lambda: Camera(width=0), "width"),
+    (lambda: Hair(points=np.zeros((2, 1, 3))), "points"),
+    (lambda: Hair(points=np.zeros((2, 3, 3)), widths=-1.0), "widths"),
+    (lambda: Hair(points=np.zeros((2, 3, 3)), colours=(2.0, 0.0, 0.0)), "colours"),
+    (lambda: Mesh(vertices=np.zeros((3, 3)), faces=[(0, 1, 3)]), "faces"),
+    (lambda: RenderSettings(layers=0), "layers"),
+    (lambda: ShadowSettings(resolution=8), "resolution"),
+    (lambda: Turntable(frames=0), "frames"),
+])
+def test_invalid_input_names_the_parameter(make, name):
+    with pytest.raises(ValueError, match=name):
+        make()
+
+
+def test_render_keeps_the_existing_taichi_runtime():
+    fp = ti.lang.impl.current_cfg().default_fp
+    render.init("cpu")  # already initialised by conftest: must be a no-op
+    assert ti.lang.impl.current_cfg().default_fp == fp
