@@ -49,15 +49,17 @@ def synthetic_hair(n_strands: int = 2000, n_segments: int = 32, *, radius: float
     s = np.linspace(0.0, 1.0, n_segments + 1)[None, :, None]
     strand_len = length * rng.uniform(0.8, 1.2, size=(len(n), 1, 1))
     down = np.array([0.0, -1.0, 0.0])
-    # leave along the normal, then bend towards gravity
+    # leave along the normal, then fall: down, and backwards for roots over the face
+    fall = down[None, :] - 1.2 * np.clip(n[:, 2:3], 0.0, 1.0) * np.array([0.0, 0.0, 1.0])
+    fall /= np.linalg.norm(fall, axis=1, keepdims=True)
     bend = np.clip(s * 4.0, 0.0, 1.0)
-    d = (1.0 - bend) * n[:, None, :] + bend * down
+    d = (1.0 - bend) * n[:, None, :] + bend * fall[:, None, :]
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    x = radius * n[:, None, :] + np.cumsum(d * strand_len / n_segments, axis=1) - d[:, :1] * 0.0
+    x = radius * n[:, None, :] + np.cumsum(d * strand_len / n_segments, axis=1)
     side = np.cross(n, down)
     side /= np.maximum(np.linalg.norm(side, axis=1, keepdims=True), 1e-9)
     phase = rng.uniform(0.0, 2.0 * np.pi, size=(len(n), 1, 1))
-    x += side[:, None, :] * 0.006 * np.sin(2.0 * np.pi * s * 5.0 + phase) * s
+    x += side[:, None, :] * 0.012 * np.sin(2.0 * np.pi * s * 4.0 + phase) * s
     # keep strands outside the head, each on its own shell so the hair has volume
     shell = radius * (1.01 + 0.12 * rng.uniform(size=(len(n), 1, 1)) * np.clip(s * 6, 0, 1))
     r = np.linalg.norm(x, axis=-1, keepdims=True)

@@ -34,7 +34,7 @@ class Light:
 
     to_light: tuple = (0.4, 0.7, 0.6)
     colour: tuple = (1.0, 0.97, 0.92)
-    intensity: float = 2.5
+    intensity: float = 1.8
 
     def __post_init__(self):
         d = np.asarray(self.to_light, dtype=np.float64)
@@ -56,7 +56,7 @@ class Lighting:
 
     key: Light = Light()
     ambient: tuple = (0.75, 0.8, 1.0)
-    ambient_intensity: float = 0.25
+    ambient_intensity: float = 0.3
 
     def __post_init__(self):
         if not isinstance(self.key, Light):
@@ -75,7 +75,7 @@ class HairShading:
     secondary_* the colour-tinted TRT lobe: strength >= 0, exponent >= 1, shift in degrees
     within [-30, 30] (Marschner: R at -5..-10, TRT at 1.5 times that with the opposite sign)."""
 
-    diffuse: float = 0.8
+    diffuse: float = 1.0
     primary_strength: float = 0.35
     primary_exponent: float = 80.0
     primary_shift: float = -5.0

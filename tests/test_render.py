@@ -105,7 +105,7 @@ def test_kajiya_kay_highlight_peaks_where_tangent_perpendicular_to_half_vector()
     assert abs(phi[np.argmax(kk["primary"])] - phi0) <= step
     assert kk["primary"].max() == pytest.approx(1.0, abs=1e-4)
     assert kk["primary"].min() < 0.01  # a real lobe, not a constant
-    np.testing.assert_allclose(kk["diffuse"], np.sqrt(1.0 - (t @ l) ** 2), atol=1e-5)
+    np.testing.assert_allclose(kk["diffuse"], np.sqrt(1.0 - (t @ l) ** 2), atol=1e-4)  # float32
 
 
 def test_kajiya_kay_shifted_lobes_move_by_their_shift():
