@@ -11,5 +11,6 @@ from .groom import Groom
 from .materials import Material
 from .runtime import init
 from .simulator import Simulator
+from .stability import SimulationDiverged
 
-__all__ = ["init", "Groom", "Material", "Simulator"]
+__all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged"]

@@ -54,3 +54,11 @@ def np_float():
     """numpy dtype of the process's Taichi float."""
     from .runtime import precision
     return np.float64 if precision() == "float64" else np.float32
+
+
+def like(a):
+    """A new ndarray with the same element type and shape as ndarray `a` (contents undefined)."""
+    ensure_init()
+    if a.element_shape:
+        return ti.Vector.ndarray(a.element_shape[0], float, a.shape)
+    return ti.ndarray(float, a.shape)

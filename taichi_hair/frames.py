@@ -44,6 +44,31 @@ def material_directors(u, v, theta):
     return c * u + s * v, -s * u + c * v
 
 
+@ti.func
+def strand_frames(s, x: ti.template(), node_count: ti.template(), root_t: ti.template(),
+                  root_u: ti.template(), theta: ti.template(), bishop_u: ti.template(),
+                  bishop_v: ti.template(), m1: ti.template(), m2: ti.template(), kb: ti.template()):
+    """Strand s's Bishop frames, material frames and curvature binormals (see update_frames)."""
+    n = node_count[s]
+    t_prev = (x[s, 1] - x[s, 0]).normalized()
+    u = parallel_transport(root_u[s], root_t[s], t_prev)
+    kb[s, 0] = vec3(0.0)
+    for j in range(n - 1):
+        e = x[s, j + 1] - x[s, j]
+        t = e.normalized()
+        if j > 0:
+            u = parallel_transport(u, t_prev, t)
+            kb[s, j] = curvature_binormal(x[s, j] - x[s, j - 1], e)
+        # re-orthonormalise so rounding cannot accumulate along long strands
+        u = (u - u.dot(t) * t).normalized()
+        v = t.cross(u)
+        bishop_u[s, j] = u
+        bishop_v[s, j] = v
+        m1[s, j], m2[s, j] = material_directors(u, v, theta[s, j])
+        t_prev = t
+    kb[s, n - 1] = vec3(0.0)
+
+
 @ti.kernel
 def update_frames(x: Vec3s2, node_count: Ints1, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
                   bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2):
@@ -51,30 +76,19 @@ def update_frames(x: Vec3s2, node_count: Ints1, root_t: Vec3s1, root_u: Vec3s1, 
     binormals kb of every node [S, N] (zero at the two ends) from positions x [m].
     One thread per strand: the parallel transport sweeps from root to tip."""
     for s in range(x.shape[0]):
-        n = node_count[s]
-        t_prev = (x[s, 1] - x[s, 0]).normalized()
-        u = parallel_transport(root_u[s], root_t[s], t_prev)
-        kb[s, 0] = vec3(0.0)
-        for j in range(n - 1):
-            e = x[s, j + 1] - x[s, j]
-            t = e.normalized()
-            if j > 0:
-                u = parallel_transport(u, t_prev, t)
-                kb[s, j] = curvature_binormal(x[s, j] - x[s, j - 1], e)
-            # re-orthonormalise so rounding cannot accumulate along long strands
-            u = (u - u.dot(t) * t).normalized()
-            v = t.cross(u)
-            bishop_u[s, j] = u
-            bishop_v[s, j] = v
-            m1[s, j], m2[s, j] = material_directors(u, v, theta[s, j])
-            t_prev = t
-        kb[s, n - 1] = vec3(0.0)
+        strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+
+
+@ti.func
+def strand_material_frames(s, node_count: ti.template(), theta: ti.template(), bishop_u: ti.template(),
+                           bishop_v: ti.template(), m1: ti.template(), m2: ti.template()):
+    for j in range(node_count[s] - 1):
+        m1[s, j], m2[s, j] = material_directors(bishop_u[s, j], bishop_v[s, j], theta[s, j])
 
 
 @ti.kernel
 def update_material_frames(node_count: Ints1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2,
                            m1: Vec3s2, m2: Vec3s2):
-    """m1, m2 [S, N-1] from the Bishop frames and material angles theta [rad]. One thread per edge."""
-    for s, j in ti.ndrange(theta.shape[0], theta.shape[1]):
-        if j < node_count[s] - 1:
-            m1[s, j], m2[s, j] = material_directors(bishop_u[s, j], bishop_v[s, j], theta[s, j])
+    """m1, m2 [S, N-1] from the Bishop frames and material angles theta [rad]. One thread per strand."""
+    for s in range(theta.shape[0]):
+        strand_material_frames(s, node_count, theta, bishop_u, bishop_v, m1, m2)

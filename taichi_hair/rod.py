@@ -108,6 +108,33 @@ def add_holonomy_gradient(s, i, e0, e1, kbi, coeff, grad: ti.template()):
     grad[s, i] -= d_prev + d_next
 
 
+@ti.func
+def strand_elastic_forces(s, x: ti.template(), node_count: ti.template(), kb: ti.template(),
+                          m1: ti.template(), m2: ti.template(), rest_kappa: ti.template(),
+                          voronoi: ti.template(), stiffness: ti.template(), force: ti.template()):
+    """force[s, :] = -dE/dx for strand s (see elastic_forces)."""
+    n = node_count[s]
+    k = stiffness[s]
+    for i in range(n):
+        force[s, i] = vec3(0.0)
+    suffix = 0.0
+    for r in range(n - 2):
+        i = n - 2 - r
+        inv_2l = 0.5 / voronoi[s, i]
+        rk = rest_kappa[s, i]
+        kbi = kb[s, i]
+        _, dth_prev, _, g_prev = bend_terms(kbi, m1[s, i - 1], m2[s, i - 1], rk.xy, k.x, k.y, inv_2l)
+        _, dth_next, _, g_next = bend_terms(kbi, m1[s, i], m2[s, i], rk.zw, k.x, k.y, inv_2l)
+        suffix += dth_next  # now the sum over edges j >= i is complete
+        e0 = x[s, i] - x[s, i - 1]
+        e1 = x[s, i + 1] - x[s, i]
+        add_kb_gradient(s, i, e0, e1, kbi, g_prev + g_next, force)
+        add_holonomy_gradient(s, i, e0, e1, kbi, suffix, force)
+        suffix += dth_prev
+    for i in range(n):
+        force[s, i] = -force[s, i]
+
+
 @ti.kernel
 def elastic_forces(x: Vec3s2, node_count: Ints1, kb: Vec3s2, m1: Vec3s2, m2: Vec3s2,
                    rest_kappa: Vec4s2, voronoi: Scalars2, stiffness: Vec4s1, force: Vec3s2):
@@ -119,26 +146,7 @@ def elastic_forces(x: Vec3s2, node_count: Ints1, kb: Vec3s2, m1: Vec3s2, m2: Vec
     The root edge is clamped but Psi^0 = 0, so it adds no term. One thread per strand; the
     suffix sum C_k = sum_{j>=k} dE_bend/dtheta^j runs from tip to root."""
     for s in range(x.shape[0]):
-        n = node_count[s]
-        k = stiffness[s]
-        for i in range(n):
-            force[s, i] = vec3(0.0)
-        suffix = 0.0
-        for r in range(n - 2):
-            i = n - 2 - r
-            inv_2l = 0.5 / voronoi[s, i]
-            rk = rest_kappa[s, i]
-            kbi = kb[s, i]
-            _, dth_prev, _, g_prev = bend_terms(kbi, m1[s, i - 1], m2[s, i - 1], rk.xy, k.x, k.y, inv_2l)
-            _, dth_next, _, g_next = bend_terms(kbi, m1[s, i], m2[s, i], rk.zw, k.x, k.y, inv_2l)
-            suffix += dth_next  # now the sum over edges j >= i is complete
-            e0 = x[s, i] - x[s, i - 1]
-            e1 = x[s, i + 1] - x[s, i]
-            add_kb_gradient(s, i, e0, e1, kbi, g_prev + g_next, force)
-            add_holonomy_gradient(s, i, e0, e1, kbi, suffix, force)
-            suffix += dth_prev
-        for i in range(n):
-            force[s, i] = -force[s, i]
+        strand_elastic_forces(s, x, node_count, kb, m1, m2, rest_kappa, voronoi, stiffness, force)
 
 
 @ti.kernel

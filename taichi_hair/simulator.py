@@ -1,48 +1,278 @@
-"""The Simulator: a groom and its material turned into Taichi state, with the stages of
-Kmoch's loop run on it. It holds the arrays and the options; the physics lives in the kernels
-of frames.py, rod.py, twist.py (and the stepping stages of step.py)."""
+"""The Simulator: a groom and its material turned into Taichi state, stepped by Kmoch's loop.
+
+It holds the arrays and the options; the physics lives in the kernels of frames.py, rod.py,
+twist.py and step.py. Units: SI throughout.
+"""
+
+import math
+import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import arrays
 from .frames import update_frames, update_material_frames
 from .groom import Groom
+from .progress import ProgressBar
 from .rod import elastic_forces, strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
+from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step
 from .state import build
-from .twist import copy_angles, kmoch_twist_angles, solve_twist_quasistatic
+from .step import (StepPlan, advance, kmoch_step, place_roots, run_twist_update,
+                   strand_mechanical_energy)
+
+MAX_STEPS_PER_LAUNCH = 256  # bounds the per-launch buffer of head poses
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
+
+
+@dataclass
+class Control:
+    """What drives a step. head: [1, 4] vec3 ndarray (rows of R, translation t) of the head;
+    head_poses: [K, 4] the same for each of K steps of a launch when the head moves; loads: [2] vec3 ndarray (gravity [m/s^2], wind [m/s]); drag [N s/m per metre];
+    user_force: [S, N] vec3 ndarray [N] or None; max_speed [m/s], the blow-up threshold."""
+
+    head: object
+    head_poses: object
+    loads: object
+    drag: float
+    user_force: object
+    max_speed: float
+
+
+def _vector3(name, value):
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
+    return v
+
+
+def _positive(name, value, unit, upper=math.inf):
+    if not (isinstance(value, (int, float)) and 0 < value < upper and math.isfinite(value)):
+        bound = f" and < {upper:g}" if upper < math.inf else ""
+        raise ValueError(f"{name} must be > 0{bound} {unit}, got {value!r}")
+    return float(value)
 
 
 class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
-    twist: "kmoch" (Kmoch et al.'s alignment rule for elliptic hair), "quasistatic" (Newton on
-    dE/dtheta = 0 per strand) or "none" (material angles stay at their rest values).
-    twist_tol: scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ) that ends the quasistatic
-    solve (default 1e-10 in float64, 1e-5 in float32); twist_iterations caps it.
+    dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
+        with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
+        strand]: each node feels -nu l_i (v - wind), l_i its Voronoi length. wind [m/s].
+    twist: "kmoch" (Kmoch et al.'s rule, meant for elliptic hair), "quasistatic" (Newton on
+        dE/dtheta = 0 per strand) or "none" (material angles stay as they are).
+    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection;
+        projection_iterations caps it. twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ)
+        ending the quasistatic solve (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
+    root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
+        `set_root_transform`. max_speed [m/s]: a node faster than this counts as a blow-up.
     """
 
-    def __init__(self, groom: Groom, material, *, twist: str = "kmoch", twist_tol: float | None = None,
-                 twist_iterations: int = 30):
+    def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
+                 drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "kmoch",
+                 projection_tol: float = 1e-6, projection_iterations: int = 100,
+                 twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
+                 strict: bool = False, max_speed: float = 100.0,
+                 stability_factor: float = DEFAULT_STABILITY_FACTOR):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
         if twist not in TWIST_MODES:
             raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
-        if twist_tol is None:
-            twist_tol = 1e-10 if precision() == "float64" else 1e-5
-        if not (twist_tol > 0):
-            raise ValueError(f"twist_tol must be > 0, got {twist_tol!r}")
-        if not (isinstance(twist_iterations, int) and twist_iterations >= 1):
-            raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
+        twist_tol = (1e-10 if precision() == "float64" else 1e-5) if twist_tol is None else twist_tol
+        for name, value in (("projection_iterations", projection_iterations),
+                            ("twist_iterations", twist_iterations)):
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if not (isinstance(drag, (int, float)) and math.isfinite(drag) and drag >= 0):
+            raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
+        if root_motion is not None and not callable(root_motion):
+            raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")
         self.groom = groom
+        self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
-        self.twist_tol = float(twist_tol)
         self.twist_iterations = twist_iterations
         self.model, self.state = build(groom, material)
-        self._twist_report = {"iterations": 0, "residual": 0.0}
+        self.stable_dt = stable_time_step(groom, self.model.materials, drag,
+                                          _positive("stability_factor", stability_factor, "", upper=2.0))
+        self.substeps = self._substeps_for(strict)
+        self.plan = StepPlan(
+            external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0 or np.any(_vector3("wind", wind))),
+            twist=twist, projection_tol=_positive("projection_tol", projection_tol, "", upper=1.0),
+            projection_iterations=projection_iterations,
+            twist_tol=_positive("twist_tol", twist_tol, ""), twist_iterations=twist_iterations)
+        self.control = Control(
+            head=arrays.vectors(3, (1, 4), np.vstack([np.eye(3), np.zeros((1, 3))])[None]),
+            head_poses=None,
+            loads=arrays.vectors(3, (2,), np.stack([_vector3("gravity", gravity), _vector3("wind", wind)])),
+            drag=float(drag), user_force=None, max_speed=_positive("max_speed", max_speed, "m/s"))
+        self.root_motion = root_motion
+        self.time = 0.0
+        self.steps_taken = 0
+        self._snapshot = None
+        self._potential = arrays.scalars((groom.n_strands,))
+        self._head = (np.eye(3), np.zeros(3))
+        if root_motion is not None:
+            self._place_groom(*self._head_at(0.0))
+        self.update_frames()
+
+    def _substeps_for(self, strict: bool) -> int:
+        if self.dt <= self.stable_dt:
+            return 1
+        message = (f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
+                   f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment and drag)")
+        if strict:
+            raise ValueError(message + "; lower dt or pass strict=False to substep automatically")
+        substeps = math.ceil(self.dt / self.stable_dt)
+        warnings.warn(f"{message}: each step runs {substeps} substeps of {self.dt / substeps:.3g} s",
+                      RuntimeWarning, stacklevel=3)
+        return substeps
+
+    # ---- head transform -----------------------------------------------------------------
+    def _head_at(self, t: float):
+        return check_rigid_transform(*self.root_motion(t))
+
+    def _place_groom(self, rotation, translation):
+        """Put the whole groom rigidly at the head's pose (used for the initial pose only)."""
+        self._head = (rotation, translation)
+        x = self.groom.positions @ rotation.T + translation
+        self.state.x.from_numpy(x.astype(arrays.np_float()))
+        self._set_head_control(rotation, translation)
+
+    def _set_head_control(self, rotation, translation):
+        self.control.head.from_numpy(np.vstack([rotation, translation])[None].astype(arrays.np_float()))
+        st, md = self.state, self.model
+        place_roots(self.control.head, md.root_rest, md.root_tangent, md.root_reference, st.dx,
+                    st.root_t, st.root_u)  # only the reference frames: x goes to dx, a scratch
+
+    def set_root_transform(self, rotation, translation) -> None:
+        """Move the head: the root edges follow the rigid transform x -> R x + t of the groom's
+        rest pose. Their reference frames turn at once; the root nodes get there during the next
+        step (with the velocity that implies). rotation: 3x3 proper rotation; translation [m]."""
+        rotation, translation = check_rigid_transform(rotation, translation)
+        self._head = (rotation, translation)
+        self._set_head_control(rotation, translation)
+        self.update_frames()
+
+    # ---- stepping -----------------------------------------------------------------------
+    def step(self, n: int = 1, timers=None) -> None:
+        """Advance n steps of dt (each maybe substepped). On blow-up the state is rolled back to
+        where this call began and SimulationDiverged is raised. With `timers` (a callable
+        name -> context manager that synchronises), every stage runs as its own kernel and is
+        timed; otherwise many substeps run in one fused launch."""
+        if not (isinstance(n, int) and n >= 0):
+            raise ValueError(f"n must be an integer >= 0, got {n!r}")
+        self._take_snapshot()
+        h = self.dt / self.substeps
+        remaining = n * self.substeps
+        while remaining > 0:
+            count = 1 if timers is not None else min(remaining, MAX_STEPS_PER_LAUNCH)
+            moving = self.root_motion is not None
+            if moving:
+                self._load_head_poses(h, count)
+            if timers is not None:
+                kmoch_step(self.model, self.state, self.control, self.plan, h, timers)
+            else:
+                advance(self.model, self.state, self.control, self.plan, h, count, moving)
+            bad = self.state.strand_bad.to_numpy()
+            if np.any(bad >= 0):
+                self._diverged(h, bad)
+            self.time += count * h
+            remaining -= count
+        self.steps_taken += n
+
+    def _load_head_poses(self, h, count):
+        """Head poses at the end of each of the next `count` substeps, for the fused launch."""
+        poses = np.empty((count, 4, 3))
+        for k in range(count):
+            rotation, translation = self._head_at(self.time + (k + 1) * h)
+            poses[k, :3], poses[k, 3] = rotation, translation
+        self._head = (poses[-1, :3].copy(), poses[-1, 3].copy())
+        if self.control.head_poses is None or self.control.head_poses.shape[0] < count:
+            self.control.head_poses = arrays.vectors(3, (max(count, MAX_STEPS_PER_LAUNCH), 4))
+        buffer = np.zeros(self.control.head_poses.shape + (3,))
+        buffer[:count] = poses
+        self.control.head_poses.from_numpy(buffer.astype(arrays.np_float()))
+        self.control.head.from_numpy(poses[:1].astype(arrays.np_float()))
+
+    def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
+        """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
+        stderr. A blow-up leaves the state at the end of the last healthy chunk."""
+        if not (isinstance(seconds, (int, float)) and seconds >= 0 and math.isfinite(seconds)):
+            raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
+        total = int(round(seconds / self.dt))
+        per_chunk = max(1, int(round(chunk / self.dt)))
+        with ProgressBar(total * self.dt, "simulating", enabled=progress) as bar:
+            done = 0
+            while done < total:
+                k = min(per_chunk, total - done)
+                self.step(k)
+                done += k
+                bar.update(k * self.dt)
+
+    def _take_snapshot(self):
+        st = self.state
+        if self._snapshot is None:
+            self._snapshot = {name: arrays.like(getattr(st, name)) for name in ("x", "v", "theta")}
+        for name, copy in self._snapshot.items():
+            copy.copy_from(getattr(st, name))
+        self._snapshot_clock = (self.time, self.steps_taken, self._head)
+
+    def _diverged(self, h, bad_step):
+        bad = np.flatnonzero(bad_step >= 0)
+        first = bad[np.argmin(bad_step[bad])]
+        cap_hits = int(self.state.projection_cap_hits.to_numpy().sum())
+        t = self.time + (bad_step[first] + 1) * h
+        step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
+        for name, copy in self._snapshot.items():
+            getattr(self.state, name).copy_from(copy)
+        self.time, self.steps_taken, head = self._snapshot_clock
+        self._set_head_control(*head)
+        self.update_frames()
+        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed)
+        raise SimulationDiverged(
+            f"simulation diverged at step {step} (t = {t:.4g} s): strand {first} "
+            f"({len(bad)} strand(s) in all) went non-finite or faster than {self.control.max_speed:g} m/s; "
+            f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
+            step=step, strand=int(first))
+
+    def set_user_forces(self, force) -> None:
+        """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
+        if force is None:
+            self.control.user_force = None
+            return
+        force = np.asarray(force, dtype=np.float64)
+        shape = (self.groom.n_strands, self.groom.max_nodes, 3)
+        if force.shape != shape or not np.all(np.isfinite(force)):
+            raise ValueError(f"user forces must be finite with shape {list(shape)}, got {list(force.shape)}")
+        if self.control.user_force is None:
+            self.control.user_force = arrays.vectors(3, shape[:2])
+        self.control.user_force.from_numpy(force.astype(arrays.np_float()))
+
+    def stats(self, reset: bool = False) -> dict:
+        """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
+        projection iterations (max), its final residual (max), how many strand-steps hit the
+        iteration cap, and the twist solve's iterations and residual (quasistatic)."""
+        st = self.state
+        report = {
+            "time": self.time, "steps": self.steps_taken, "dt": self.dt, "substeps": self.substeps,
+            "substep_dt": self.dt / self.substeps, "stable_dt": self.stable_dt,
+            "projection_tol": self.plan.projection_tol,
+            "projection_iterations_max": int(st.projection_iterations.to_numpy().max()),
+            "projection_residual_max": float(st.projection_residual.to_numpy().max()),
+            "projection_cap_hits": int(st.projection_cap_hits.to_numpy().sum()),
+            "twist": self.twist,
+        }
+        if self.twist == "quasistatic":
+            report["twist_iterations_max"] = int(st.twist_iterations.to_numpy().max())
+            report["twist_residual_max"] = float(st.twist_residual.to_numpy().max())
+        if reset:
+            for a in (st.projection_iterations, st.projection_cap_hits, st.twist_iterations):
+                a.fill(0)
+            for a in (st.projection_residual, st.twist_residual):
+                a.fill(0.0)
+        return report
 
     # ---- state in and out -------------------------------------------------------------
     @property
@@ -53,18 +283,29 @@ class Simulator:
         """Node positions [S, N, 3] in metres (padding nodes repeat each strand's last node)."""
         return self.state.x.to_numpy().astype(np.float64)
 
+    def velocities(self) -> np.ndarray:
+        """Node velocities [S, N, 3] in m/s."""
+        return self.state.v.to_numpy().astype(np.float64)
+
     def set_positions(self, x) -> None:
         """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
         are kept (call `update_twist` to re-solve them)."""
-        x = np.asarray(x, dtype=np.float64)
-        expected = (self.groom.n_strands, self.groom.max_nodes, 3)
-        if x.shape != expected:
-            raise ValueError(f"positions must have shape {list(expected)}, got {list(x.shape)}")
-        if not np.all(np.isfinite(x)):
-            s, i = np.argwhere(~np.isfinite(x))[0][:2]
-            raise ValueError(f"positions must be finite; strand {s} node {i} is {x[s, i]}")
-        self.state.x.from_numpy(x.astype(arrays.np_float()))
+        self.state.x.from_numpy(self._checked_nodes("positions", x))
         self.update_frames()
+
+    def set_velocities(self, v) -> None:
+        """Set node velocities [S, N, 3] in m/s."""
+        self.state.v.from_numpy(self._checked_nodes("velocities", v))
+
+    def _checked_nodes(self, name, values):
+        values = np.asarray(values, dtype=np.float64)
+        expected = (self.groom.n_strands, self.groom.max_nodes, 3)
+        if values.shape != expected:
+            raise ValueError(f"{name} must have shape {list(expected)}, got {list(values.shape)}")
+        if not np.all(np.isfinite(values)):
+            s, i = np.argwhere(~np.isfinite(values))[0][:2]
+            raise ValueError(f"{name} must be finite; strand {s} node {i} is {values[s, i]}")
+        return values.astype(arrays.np_float())
 
     def material_angles(self) -> np.ndarray:
         """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
@@ -82,8 +323,7 @@ class Simulator:
     def frames(self) -> dict:
         """Numpy copies [S, N-1, 3] of the Bishop frame (u, v), the material frame (m1, m2),
         the unit tangents t, and the curvature binormals kb [S, N, 3]."""
-        x = self.positions()
-        e = np.diff(x, axis=1)
+        e = np.diff(self.positions(), axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             t = e / np.linalg.norm(e, axis=2, keepdims=True)
         st = self.state
@@ -99,25 +339,16 @@ class Simulator:
 
     def update_twist(self) -> dict:
         """Solve the free edges' material angles with the chosen twist mode. Returns
-        {"iterations": max Newton iterations over strands, "residual": max scaled residual}
-        for "quasistatic" (iterations 1, residual of the result otherwise)."""
-        st, md = self.state, self.model
+        {"iterations", "residual"}: the quasistatic solve's max over strands (the scaled residual
+        max |dE/dtheta| l / max(EI1, GJ)); for "kmoch" and "none", 1 and 0 iterations, residual NaN."""
+        st = self.state
+        st.twist_iterations.fill(0)
+        st.twist_residual.fill(0.0)
+        run_twist_update(self.model, st, self.plan)
         if self.twist == "quasistatic":
-            grad, diag, upper = st.scratch_edge
-            solve_twist_quasistatic(md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                                    md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
-                                    self.twist_tol, self.twist_iterations, grad, diag, upper,
-                                    st.strand_count, st.strand_scalar)
-            self._twist_report = {"iterations": int(st.strand_count.to_numpy().max()),
-                                  "residual": float(st.strand_scalar.to_numpy().max())}
-        elif self.twist == "kmoch":
-            theta_new = st.scratch_edge[0]
-            kmoch_twist_angles(md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                               md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, theta_new)
-            copy_angles(md.node_count, theta_new, st.theta)
-            self._twist_report = {"iterations": 1, "residual": float("nan")}
-        update_material_frames(md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
-        return dict(self._twist_report)
+            return {"iterations": int(st.twist_iterations.to_numpy().max()),
+                    "residual": float(st.twist_residual.to_numpy().max())}
+        return {"iterations": int(self.twist == "kmoch"), "residual": float("nan")}
 
     # ---- energies and forces ----------------------------------------------------------
     def strand_elastic_energy(self) -> np.ndarray:
@@ -130,6 +361,26 @@ class Simulator:
     def elastic_energy(self) -> float:
         """Bending + twist energy of all strands in joules, material angles held as they are."""
         return float(self.strand_elastic_energy().sum())
+
+    def _mechanical(self):
+        """Per-strand kinetic and gravitational energy [S], [S] in joules."""
+        st, md = self.state, self.model
+        strand_mechanical_energy(md.node_count, md.mass, md.inv_mass, st.x, st.v, self.control.loads,
+                                 st.strand_scalar, self._potential)
+        return st.strand_scalar.to_numpy().astype(np.float64), self._potential.to_numpy().astype(np.float64)
+
+    def kinetic_energy(self) -> float:
+        """Sum of 1/2 m |v|^2 over free nodes [J] (the head-driven root edge excluded)."""
+        return float(self._mechanical()[0].sum())
+
+    def gravity_energy(self) -> float:
+        """Gravitational potential -sum m g . x over free nodes [J] (zero at the origin)."""
+        return float(self._mechanical()[1].sum())
+
+    def total_energy(self) -> float:
+        """kinetic + gravity + elastic [J]."""
+        k, p = self._mechanical()
+        return float(k.sum() + p.sum()) + self.elastic_energy()
 
     def elastic_forces(self) -> np.ndarray:
         """Elastic forces [S, N, 3] in newtons: minus the gradient of `elastic_energy` with the
@@ -147,17 +398,6 @@ class Simulator:
         theta_gradient(md.node_count, st.kb, st.m1, st.m2, st.theta, md.rest_kappa, md.rest_twist,
                        md.voronoi, md.stiffness, out)
         return out.to_numpy().astype(np.float64)
-
-    # ---- head transform -----------------------------------------------------------------
-    def set_root_transform(self, rotation, translation) -> None:
-        """Place the head: root nodes and the root edges' reference frames follow the rigid
-        transform x -> R x + t of the groom's rest pose. rotation: 3x3 proper rotation;
-        translation: [3] metres."""
-        rotation, translation = check_rigid_transform(rotation, translation)
-        self._root_rotation, self._root_translation = rotation, translation
-        st, md = self.state, self.model
-        st.root_t.from_numpy((md.root_tangent @ rotation.T).astype(arrays.np_float()))
-        st.root_u.from_numpy((md.root_reference @ rotation.T).astype(arrays.np_float()))
 
 
 def check_rigid_transform(rotation, translation):

@@ -24,8 +24,10 @@ class RodModel:
     two rest edges; the two end nodes: half their edge); inv_mass [S, N] 1/kg (0 on the clamped
     root edge's two nodes); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
     rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
-    rest_twist [S, N] rad; root_tangent, root_reference vec3 [S] (the rest root edge's unit
-    tangent and its Bishop vector u, in head coordinates)."""
+    rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_rest vec3 [S, 2] m
+    (the root edge's two nodes in head coordinates); root_tangent, root_reference vec3 [S]
+    (the rest root edge's unit tangent and its Bishop vector u, in head coordinates), and
+    numpy copies of the last two."""
 
     groom: Groom
     materials: tuple
@@ -33,12 +35,16 @@ class RodModel:
     rest_length: object
     voronoi: object
     inv_mass: object
+    mass: object
     stiffness: object
     rest_theta: object
     rest_kappa: object
     rest_twist: object
-    root_tangent: np.ndarray
-    root_reference: np.ndarray
+    root_rest: object
+    root_tangent: object
+    root_reference: object
+    root_tangent_np: np.ndarray
+    root_reference_np: np.ndarray
 
     @property
     def n_strands(self) -> int:
@@ -54,7 +60,8 @@ class RodState:
     """Per-step state [S, N] / [S, N-1] / [S]: positions x [m], velocities v [m/s], material
     angles theta [rad], Bishop frames (bishop_u, bishop_v), material frames (m1, m2),
     curvature binormals kb [1], the head-carried root reference (root_t, root_u), forces [N],
-    and scratch arrays for the twist solve and per-strand reductions."""
+    positions before the step x_prev [m], per-strand solver counters (running maxima since the
+    last stats reset), and scratch arrays."""
 
     x: object
     v: object
@@ -67,9 +74,17 @@ class RodState:
     root_t: object
     root_u: object
     force: object
+    x_prev: object
+    dx: object  # [S, N] vec3 scratch of the projection
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
     strand_count: object  # [S] int
+    strand_bad: object  # [S] int: 1 where the last step went non-finite or too fast
+    projection_iterations: object  # [S] int
+    projection_residual: object  # [S] float
+    projection_cap_hits: object  # [S] int
+    twist_iterations: object  # [S] int
+    twist_residual: object  # [S] float
 
 
 def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
@@ -77,6 +92,7 @@ def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
     rest_length = np.zeros((s_count, n_max - 1))
     voronoi = np.ones((s_count, n_max))
     inv_mass = np.zeros((s_count, n_max))
+    mass = np.zeros((s_count, n_max))
     for s in range(s_count):
         n = groom.node_counts[s]
         lengths = np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1)
@@ -85,8 +101,9 @@ def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
         vor[:-1] += 0.5 * lengths
         vor[1:] += 0.5 * lengths
         voronoi[s, :n] = vor
-        inv_mass[s, 2:n] = 1.0 / (linear_density[s] * vor[2:])
-    return rest_length, voronoi, inv_mass
+        mass[s, :n] = linear_density[s] * vor
+        inv_mass[s, 2:n] = 1.0 / mass[s, 2:n]
+    return rest_length, voronoi, inv_mass, mass
 
 
 def perpendicular_unit(t: np.ndarray) -> np.ndarray:
@@ -108,9 +125,17 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodS
         kb=arrays.vectors(3, (s_count, n_max)),
         root_t=arrays.vectors(3, (s_count,), root_t), root_u=arrays.vectors(3, (s_count,), root_u),
         force=arrays.vectors(3, (s_count, n_max)),
+        x_prev=arrays.vectors(3, (s_count, n_max), groom.positions),
+        dx=arrays.vectors(3, (s_count, n_max)),
         scratch_edge=tuple(arrays.scalars(edges) for _ in range(3)),
         strand_scalar=arrays.scalars((s_count,)),
         strand_count=arrays.ints((s_count,), 0),
+        strand_bad=arrays.ints((s_count,), 0),
+        projection_iterations=arrays.ints((s_count,), 0),
+        projection_residual=arrays.scalars((s_count,)),
+        projection_cap_hits=arrays.ints((s_count,), 0),
+        twist_iterations=arrays.ints((s_count,), 0),
+        twist_residual=arrays.scalars((s_count,)),
     )
 
 
@@ -147,7 +172,7 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
     rest shape with the same kernels the simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
     table = stiffness_table(materials)
-    rest_length, voronoi, inv_mass = _voronoi_and_mass(groom, table["linear_density"])
+    rest_length, voronoi, inv_mass, mass = _voronoi_and_mass(groom, table["linear_density"])
     root_t = groom.positions[:, 1] - groom.positions[:, 0]
     root_t /= np.linalg.norm(root_t, axis=1)[:, None]
     root_u = perpendicular_unit(root_t)
@@ -173,9 +198,13 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
         rest_length=arrays.scalars(rest_length.shape, rest_length),
         voronoi=arrays.scalars(voronoi.shape, voronoi),
         inv_mass=arrays.scalars(inv_mass.shape, inv_mass),
+        mass=arrays.scalars(mass.shape, mass),
         stiffness=arrays.vectors(4, (groom.n_strands,), stiffness),
         rest_theta=arrays.scalars(rest_theta.shape, rest_theta),
         rest_kappa=rest_kappa, rest_twist=arrays.scalars(rest_twist.shape, rest_twist),
-        root_tangent=root_t, root_reference=root_u,
+        root_rest=arrays.vectors(3, (groom.n_strands, 2), groom.positions[:, :2]),
+        root_tangent=arrays.vectors(3, (groom.n_strands,), root_t),
+        root_reference=arrays.vectors(3, (groom.n_strands,), root_u),
+        root_tangent_np=root_t, root_reference_np=root_u,
     )
     return model, state

@@ -1,0 +1,21 @@
+"""Small linear-algebra helpers used inside kernels."""
+
+import taichi as ti
+
+
+@ti.func
+def thomas_solve(s, first, last, diag: ti.template(), upper: ti.template(), rhs: ti.template()):
+    """Solve strand s's symmetric tridiagonal system on rows first..last in place: diag[s, j]
+    the diagonal, upper[s, j] the entry coupling rows j and j+1, rhs[s, j] the right-hand side,
+    overwritten by the solution (diag is overwritten too). O(rows), no pivoting: the callers'
+    matrices are symmetric positive definite."""
+    for j in range(first + 1, last + 1):
+        w = upper[s, j - 1] / diag[s, j - 1]
+        diag[s, j] -= w * upper[s, j - 1]
+        rhs[s, j] -= w * rhs[s, j - 1]
+    for r in range(last - first + 1):
+        j = last - r
+        nxt = 0.0
+        if j < last:
+            nxt = upper[s, j] * rhs[s, j + 1]
+        rhs[s, j] = (rhs[s, j] - nxt) / diag[s, j]
