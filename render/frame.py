@@ -69,7 +69,7 @@ def _upload_hair(hair: Hair | None) -> dict:
                 screen=buffer("hair_screen", vec4f, (nv,), 4),
                 shadow=buffer("hair_shadow", f32, (nv,)),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
-                n_vertices=len(x), n_segments=len(seg), host_x=x, opacity=float(opacity))
+                n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
 
 
 def _upload_meshes(meshes) -> dict:
@@ -83,7 +83,7 @@ def _upload_meshes(meshes) -> dict:
                 width=upload("mesh_w", np.zeros(nv, np.float32), f32),
                 width_px=buffer("mesh_width_px", f32, (nv,)),
                 screen=buffer("mesh_screen", vec4f, (nv,), 4),
-                n_vertices=len(m["x"]), n_faces=len(m["faces"]), host_x=m["x"])
+                n_vertices=len(m["x"]), n_faces=len(m["faces"]))
 
 
 def _check(camera, hair, meshes, lighting, settings):

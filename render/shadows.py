@@ -211,22 +211,36 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
         out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
-def _scene_sphere(points: list[np.ndarray]) -> tuple[np.ndarray, float]:
-    pts = np.concatenate([p for p in points if len(p)])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    radius = float(np.sqrt(((pts - centre) ** 2).sum(axis=1).max()))
-    return centre, max(radius * 1.02, 1e-6)
+@ti.kernel
+def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+                 box: ti.types.ndarray(dtype=vec3f, ndim=1)):
+    """box[0] (box[1]) = component-wise min (max) of x[:n] [m]; reduced in parallel."""
+    box[0] = vec3f(3.0e38, 3.0e38, 3.0e38)
+    box[1] = vec3f(-3.0e38, -3.0e38, -3.0e38)
+    for i in range(n):
+        ti.atomic_min(box[0], x[i])
+        ti.atomic_max(box[1], x[i])
+
+
+def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
+    """Centre [m] and radius [m] of a sphere around the bounding box of the uploaded points."""
+    boxes = []
+    for d in parts:
+        box = buffer("scene_box", vec3f, (2,), 3)
+        bounding_box(d["n_vertices"], d["x"], box)
+        boxes.append(box.to_numpy().astype(np.float64))
+    lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+    return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)) * 1.01, 1e-6)
 
 
 def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
                      mesh: dict | None) -> ShadowMap:
     """Render the light's maps. hair/mesh: dicts of uploaded device arrays from `render.frame`
-    (both: x, width, width_px (scratch), n_vertices, host_x; hair also: seg, n_segments,
+    (both: x, width, width_px (scratch), n_vertices; hair also: seg, n_segments,
     opacity; mesh also: faces, n_faces) or None. Disabled settings or an empty scene give a map that lets all
     light through."""
-    points = [d["host_x"] for d in (hair, mesh) if d is not None]
-    enabled = settings.enabled and bool(points)
+    parts = [d for d in (hair, mesh) if d is not None]
+    enabled = settings.enabled and bool(parts)
     r = settings.resolution if enabled else 16
     layers = settings.layers
     z0 = buffer("shadow_z0", f32, (r, r))
@@ -238,7 +252,7 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
         bounds = upload("shadow_bounds", settings.bounds(1.0), f32)
         return ShadowMap(np.eye(4, dtype=np.float32), np.array([1, 0, 0, 1], np.float32), z0,
                          opacity, bounds, mesh_key, np.zeros(4, np.float32))
-    centre, radius = _scene_sphere(points)
+    centre, radius = _scene_sphere(parts)
     light = OrthoView(to_light=np.asarray(to_light, float), centre=centre, radius=radius,
                       resolution=r)
     view, proj = light.matrices()
