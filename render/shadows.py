@@ -213,22 +213,26 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
 
 @ti.kernel
 def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
-                 box: ti.types.ndarray(dtype=vec3f, ndim=1)):
-    """box[0] (box[1]) = component-wise min (max) of x[:n] [m]; reduced in parallel."""
-    box[0] = vec3f(3.0e38, 3.0e38, 3.0e38)
-    box[1] = vec3f(-3.0e38, -3.0e38, -3.0e38)
+                 box: ti.types.ndarray(dtype=f32, ndim=1)):
+    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Scalar atomics on fixed
+    addresses, which Taichi turns into thread-local reductions."""
+    for k in ti.static(range(3)):
+        box[k] = f32(3.0e38)
+        box[k + 3] = f32(-3.0e38)
     for i in range(n):
-        ti.atomic_min(box[0], x[i])
-        ti.atomic_max(box[1], x[i])
+        p = x[i]
+        for k in ti.static(range(3)):
+            ti.atomic_min(box[k], p[k])
+            ti.atomic_max(box[k + 3], p[k])
 
 
 def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
     """Centre [m] and radius [m] of a sphere around the bounding box of the uploaded points."""
     boxes = []
     for d in parts:
-        box = buffer("scene_box", vec3f, (2,), 3)
+        box = buffer("scene_box", f32, (6,))
         bounding_box(d["n_vertices"], d["x"], box)
-        boxes.append(box.to_numpy().astype(np.float64))
+        boxes.append(box.to_numpy().astype(np.float64).reshape(2, 3))
     lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
     return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)) * 1.01, 1e-6)
 
