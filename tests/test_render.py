@@ -288,3 +288,13 @@ def test_render_keeps_the_existing_taichi_runtime():
     fp = ti.lang.impl.current_cfg().default_fp
     render.init("cpu")  # already initialised by conftest: must be a no-op
     assert ti.lang.impl.current_cfg().default_fp == fp
+
+
+def test_render_knows_nothing_of_physics():
+    import ast
+    import pathlib
+    for path in pathlib.Path(render.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not any(n.split(".")[0] == "taichi_hair" for n in names), path
