@@ -5,6 +5,8 @@ import sys
 
 import numpy as np
 
+from . import bench
+
 
 def _demo(args) -> int:
     """Build a curly strand, bend it, solve its twist and print energy and forces."""
@@ -55,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--bend", type=float, default=30.0, help="bend at the tip [degrees]")
     demo.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
     demo.set_defaults(func=_demo)
+    bench.add_parser(sub)
     return parser
 
 

@@ -62,8 +62,9 @@ class Simulator:
         strand]: each node feels -nu l_i (v - wind), l_i its Voronoi length. wind [m/s].
     twist: "kmoch" (Kmoch et al.'s rule, meant for elliptic hair), "quasistatic" (Newton on
         dE/dtheta = 0 per strand) or "none" (material angles stay as they are).
-    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection;
-        projection_iterations caps it. twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ)
+    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
+        in float32 the rounding floor of the scene's coordinates if larger, see
+        `default_projection_tol`); projection_iterations caps it. twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ)
         ending the quasistatic solve (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
     root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
         `set_root_transform`. max_speed [m/s]: a node faster than this counts as a blow-up.
@@ -71,7 +72,7 @@ class Simulator:
 
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
                  drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "kmoch",
-                 projection_tol: float = 1e-6, projection_iterations: int = 100,
+                 projection_tol: float | None = None, projection_iterations: int = 100,
                  twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
                  strict: bool = False, max_speed: float = 100.0,
                  stability_factor: float = DEFAULT_STABILITY_FACTOR):
@@ -94,6 +95,8 @@ class Simulator:
         self.twist = twist
         self.twist_iterations = twist_iterations
         self.model, self.state = build(groom, material)
+        if projection_tol is None:
+            projection_tol = default_projection_tol(groom)
         self.stable_dt = stable_time_step(groom, self.model.materials, drag,
                                           _positive("stability_factor", stability_factor, "", upper=2.0))
         self.substeps = self._substeps_for(strict)
@@ -252,8 +255,9 @@ class Simulator:
 
     def stats(self, reset: bool = False) -> dict:
         """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
-        projection iterations (max), its final residual (max), how many strand-steps hit the
-        iteration cap, and the twist solve's iterations and residual (quasistatic)."""
+        projection iterations (max), its final residual (max), how many strand-steps ended above
+        projection_tol at the iteration cap (projection_cap_hits) or stalled at the precision's
+        rounding floor (projection_stalls), and the twist solve's iterations and residual."""
         st = self.state
         report = {
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "substeps": self.substeps,
@@ -262,13 +266,15 @@ class Simulator:
             "projection_iterations_max": int(st.projection_iterations.to_numpy().max()),
             "projection_residual_max": float(st.projection_residual.to_numpy().max()),
             "projection_cap_hits": int(st.projection_cap_hits.to_numpy().sum()),
+            "projection_stalls": int(st.projection_stalls.to_numpy().sum()),
             "twist": self.twist,
         }
         if self.twist == "quasistatic":
             report["twist_iterations_max"] = int(st.twist_iterations.to_numpy().max())
             report["twist_residual_max"] = float(st.twist_residual.to_numpy().max())
         if reset:
-            for a in (st.projection_iterations, st.projection_cap_hits, st.twist_iterations):
+            for a in (st.projection_iterations, st.projection_cap_hits, st.projection_stalls,
+                      st.twist_iterations):
                 a.fill(0)
             for a in (st.projection_residual, st.twist_residual):
                 a.fill(0.0)
@@ -398,6 +404,18 @@ class Simulator:
         theta_gradient(md.node_count, st.kb, st.m1, st.m2, st.theta, md.rest_kappa, md.rest_twist,
                        md.voronoi, md.stiffness, out)
         return out.to_numpy().astype(np.float64)
+
+
+def default_projection_tol(groom: Groom) -> float:
+    """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
+    errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
+    (taken with a factor 8 of margin; X covers where the hair can reach from its roots)."""
+    if precision() == "float64":
+        return 1e-6
+    reach = np.abs(groom.positions).max() + groom.lengths().max()
+    shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
+                   for s in range(groom.n_strands))
+    return max(1e-6, 16 * float(np.finfo(np.float32).eps) * reach / shortest)
 
 
 def check_rigid_transform(rotation, translation):

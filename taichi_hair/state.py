@@ -83,6 +83,7 @@ class RodState:
     projection_iterations: object  # [S] int
     projection_residual: object  # [S] float
     projection_cap_hits: object  # [S] int
+    projection_stalls: object  # [S] int
     twist_iterations: object  # [S] int
     twist_residual: object  # [S] float
 
@@ -134,6 +135,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodS
         projection_iterations=arrays.ints((s_count,), 0),
         projection_residual=arrays.scalars((s_count,)),
         projection_cap_hits=arrays.ints((s_count,), 0),
+        projection_stalls=arrays.ints((s_count,), 0),
         twist_iterations=arrays.ints((s_count,), 0),
         twist_residual=arrays.scalars((s_count,)),
     )

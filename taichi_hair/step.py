@@ -89,12 +89,15 @@ def strand_project(s, node_count: ti.template(), inv_mass: ti.template(), rest_l
                    upper: ti.template(), rhs: ti.template()):
     """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
     edge: each iteration solves (grad C M^-1 grad C^T) lambda = C (tridiagonal) and moves
-    x -= M^-1 grad C^T lambda, until max_j |C_j| / |ebar^j|^2 < tol or max_iterations.
+    x -= M^-1 grad C^T lambda, until max_j |C_j| / |ebar^j|^2 < tol, max_iterations, or a stall
+    (an iteration that removes less than 10 % of the residual: the precision's rounding floor).
     The root edge's nodes have infinite mass. Returns (iterations, final residual)."""
     n = node_count[s]
     it = 0
     res = 0.0
+    previous = 0.0
     while True:
+        previous = res
         res = 0.0
         for j in range(1, n - 1):
             e = x[s, j + 1] - x[s, j]
@@ -105,7 +108,7 @@ def strand_project(s, node_count: ti.template(), inv_mass: ti.template(), rest_l
             diag[s, j] = 4.0 * e.dot(e) * (inv_mass[s, j] + inv_mass[s, j + 1])
             if j + 1 < n - 1:
                 upper[s, j] = -4.0 * inv_mass[s, j + 1] * e.dot(x[s, j + 2] - x[s, j + 1])
-        if res < tol or it >= max_iterations:
+        if res < tol or it >= max_iterations or (it >= 1 and res > 0.9 * previous):
             break
         thomas_solve(s, 1, n - 2, diag, upper, rhs)
         for i in range(n):
@@ -140,6 +143,19 @@ def record(s, counter: ti.template(), residual: ti.template(), it, res):
     residual[s] = ti.max(residual[s], res)
 
 
+@ti.func
+def record_projection(s, counter: ti.template(), residual: ti.template(), cap_hits: ti.template(),
+                      stalls: ti.template(), it, res, tol, max_iterations):
+    """Running maxima of iterations and final residual; counts of steps that ended above tol
+    at the iteration cap, or stalled at the rounding floor."""
+    record(s, counter, residual, it, res)
+    if res >= tol:
+        if it >= max_iterations:
+            cap_hits[s] += 1
+        else:
+            stalls[s] += 1
+
+
 # ---- the fused driver -------------------------------------------------------------------------
 
 @ti.kernel
@@ -153,7 +169,7 @@ def advance_strands(
         x: Vec3s2, v: Vec3s2, x_prev: Vec3s2, dx: Vec3s2, force: Vec3s2, theta: Scalars2,
         bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2, root_t: Vec3s1,
         root_u: Vec3s1, scratch_a: Scalars2, scratch_b: Scalars2, scratch_c: Scalars2,
-        projection_count: Ints1, projection_residual: Scalars1, cap_hits: Ints1,
+        projection_count: Ints1, projection_residual: Scalars1, cap_hits: Ints1, stalls: Ints1,
         twist_count: Ints1, twist_residual: Scalars1, bad_step: Ints1):
     """n_steps steps of h [s] for every strand; head[k] is the head pose at the end of step k
     (only head[0] when not moving_head). bad_step[s] = first step where strand s went non-finite
@@ -173,9 +189,8 @@ def advance_strands(
             strand_place_root(s, head, pose, root_rest, root_tangent, root_reference, x, root_t, root_u)
             it, res = strand_project(s, node_count, inv_mass, rest_length, projection_tol,
                                      projection_iterations, x, dx, scratch_a, scratch_b, scratch_c)
-            record(s, projection_count, projection_residual, it, res)
-            if res >= projection_tol:
-                cap_hits[s] += 1
+            record_projection(s, projection_count, projection_residual, cap_hits, stalls, it, res,
+                              projection_tol, projection_iterations)
             bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
             strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
             if ti.static(twist_mode == 1):
@@ -207,7 +222,7 @@ def advance(model, state, control, plan: StepPlan, h: float, n_steps: int, movin
         control.loads, control.user_force if user else st.force, st.x, st.v, st.x_prev, st.dx,
         st.force, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb, st.root_t, st.root_u,
         *st.scratch_edge, st.projection_iterations, st.projection_residual, st.projection_cap_hits,
-        st.twist_iterations, st.twist_residual, st.strand_bad)
+        st.projection_stalls, st.twist_iterations, st.twist_residual, st.strand_bad)
 
 
 # ---- one kernel per stage (benchmark breakdown; strand-coupling scenes) ---------------------
@@ -236,15 +251,12 @@ def integrate(h: float, node_count: Ints1, inv_mass: Scalars2, force: Vec3s2, he
 def project_inextensibility(node_count: Ints1, inv_mass: Scalars2, rest_length: Scalars2,
                             tol: float, max_iterations: int, x: Vec3s2, dx: Vec3s2,
                             diag: Scalars2, upper: Scalars2, rhs: Scalars2,
-                            iterations: Ints1, residual: Scalars1, cap_hits: Ints1):
-    """strand_project for every strand, with running maxima of iterations and residuals and a
-    count of steps that ended above tol. One thread per strand."""
+                            iterations: Ints1, residual: Scalars1, cap_hits: Ints1, stalls: Ints1):
+    """strand_project for every strand, recorded as in record_projection. One thread per strand."""
     for s in range(x.shape[0]):
         it, res = strand_project(s, node_count, inv_mass, rest_length, tol, max_iterations, x, dx,
                                  diag, upper, rhs)
-        record(s, iterations, residual, it, res)
-        if res >= tol:
-            cap_hits[s] += 1
+        record_projection(s, iterations, residual, cap_hits, stalls, it, res, tol, max_iterations)
 
 
 @ti.kernel
@@ -284,7 +296,7 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None) -> 
         project_inextensibility(md.node_count, md.inv_mass, md.rest_length, plan.projection_tol,
                                 plan.projection_iterations, st.x, st.dx, *st.scratch_edge,
                                 st.projection_iterations, st.projection_residual,
-                                st.projection_cap_hits)
+                                st.projection_cap_hits, st.projection_stalls)
     with stage("integration"):
         update_velocities(md.node_count, st.x, st.x_prev, 1.0 / h, control.max_speed, st.v, st.strand_bad)
     with stage("frames + twist"):

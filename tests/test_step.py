@@ -157,10 +157,11 @@ def test_constraints_hold_and_roots_follow_a_moving_head():
             n = groom.node_counts[s]
             lengths = np.linalg.norm(np.diff(x[s, :n], axis=0), axis=1)
             worst = max(worst, np.abs(lengths**2 / rest_len[s] ** 2 - 1).max())
-        if stats["projection_cap_hits"] == 0:
+        if stats["projection_cap_hits"] == 0 and stats["projection_stalls"] == 0:
             assert stats["projection_residual_max"] < stats["projection_tol"]
+            assert worst < stats["projection_tol"]
     print(f"\nworst relative constraint residual seen: {worst:.2e}")
-    assert worst < sim.plan.projection_tol or sim.stats()["projection_cap_hits"] > 0
+    assert worst < sim.plan.projection_tol
 
 
 def test_fused_and_staged_drivers_agree():
