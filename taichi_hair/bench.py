@@ -129,7 +129,7 @@ def main(args) -> int:
                "--precision", precision, "--strands", args.strands, "--repeats", str(args.repeats),
                "--stage-steps", str(args.stage_steps), "--twist", args.twist]
         out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-        results.extend(json.loads(out[out.index("["):]))
+        results.extend(json.loads(out[out.index("[\n"):]))  # skip Taichi's banner line
     if args.json:
         print(json.dumps(results, indent=2))
     else:
