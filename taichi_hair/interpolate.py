@@ -1,26 +1,27 @@
 """Dense hair from guide strands.
 
-Setup (numpy, once): the guide roots are mapped to a 2D chart of the scalp (azimuthal
-equidistant about the roots' mean direction seen from the head centre) and triangulated
-(Bowyer-Watson Delaunay); each dense root gets its containing triangle and barycentric weights
-(the nearest point of the nearest triangle when it lies outside), its nearest guide for
-clumping, and seeded per-strand variation.
+Setup (once): the scalp chart, the Delaunay triangulation of the guide roots and the location of
+every dense root in it come from `taichi_hair.scalp`; each dense root also gets its nearest
+guide for clumping, seeded per-strand variation and, when rest shapes are given, the detail
+that makes the dense strand reproduce its own rest shape (see `Interpolator`).
 
-Per frame (Taichi, ndarray arguments so each kernel compiles once per process):
+Per frame (Taichi, ndarray arguments so each kernel compiles once per process; the head pose
+travels as a [4] vec3 ndarray, rows of R then t, never as a scalar matrix argument, whose
+type could be fixed at float32 before `taichi_hair.init` chose the precision):
   1. `_guide_frames`: Bishop frame of every guide edge by parallel transport from the root
      (one thread per guide: the transport is serial along the strand).
   2. `_dense_nodes`: one thread per dense strand: barycentric interpolation of the three guides'
      root-relative shapes, clump interpolation (one guide plus an offset carried in its Bishop
      frame, so it follows the guide's bending and twist), the per-strand blend of both, and
      frizz growing toward the tip.
-  3. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
+  3. `_add_detail` (rest shapes only): one thread per node: the node's rest detail, stored in
+     the clump guide's rest Bishop frame, added back in that frame as it is now.
+  4. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
      out along the surface normal (only when the head is a sphere or ellipsoid).
 
 Positions are metres; arrays are [strand, node, xyz]; node 0 is the root.
 """
 
-from collections import Counter
-from dataclasses import dataclass
 import math
 import time
 
@@ -28,184 +29,17 @@ import numpy as np
 import taichi as ti
 
 from .runtime import ensure_init, precision
+from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
+                    sample_scalp_roots)
 
-MAX_POLAR_DEG = 170.0  # the scalp chart folds up at the antipode of the roots' mean direction
 MODES = ("barycentric", "clump", "blend")
 
 vec2 = ti.math.vec2
 vec3 = ti.math.vec3
-ivec3 = ti.types.vector(3, ti.i32)
-ivec5 = ti.types.vector(5, ti.i32)
-vec5 = ti.types.vector(5, float)
-
-
-# ---------------------------------------------------------------- setup: chart and triangulation
-
-@dataclass(frozen=True)
-class ScalpChart:
-    """Map from scalp points [M, 3] (m) to 2D chart coordinates [M, 2] (m).
-
-    spherical: azimuthal equidistant about `axis` seen from `centre` (angle from the axis times
-    `radius`, along the azimuth); otherwise the orthogonal projection on the plane through
-    `centre` normal to `axis`. e1, e2 span the chart's directions."""
-
-    centre: np.ndarray
-    axis: np.ndarray
-    e1: np.ndarray
-    e2: np.ndarray
-    radius: float
-    spherical: bool
-
-    @classmethod
-    def fit(cls, roots, normals, centre=None) -> "ScalpChart":
-        """Chart for roots [G, 3] with outward normals [G, 3]; the head centre, when not given, is
-        the point nearest (least squares) to all normal lines; a nearly flat scalp (parallel
-        normals) gets the planar chart."""
-        spherical = True
-        if centre is None:
-            proj = np.eye(3)[None] - normals[:, :, None] * normals[:, None, :]
-            a, b = proj.sum(0), np.einsum("gij,gj->i", proj, roots)
-            eig = np.linalg.eigvalsh(a)
-            spherical = eig[0] > 1e-3 * eig[-1]  # parallel normals do not meet
-            centre = np.linalg.solve(a, b) if spherical else roots.mean(0)
-        centre = np.asarray(centre, dtype=np.float64)
-        if spherical:
-            rel = roots - centre
-            axis = (rel / np.linalg.norm(rel, axis=1, keepdims=True)).mean(0)
-        else:
-            axis = normals.mean(0)
-        axis = axis / np.linalg.norm(axis)
-        e1 = _perpendicular(axis[None])[0]
-        radius = float(np.linalg.norm(roots - centre, axis=1).mean()) if spherical else 1.0
-        return cls(centre, axis, e1, np.cross(axis, e1), radius, bool(spherical))
-
-    def project(self, points, name="points") -> np.ndarray:
-        """Chart coordinates [M, 2] (m) of points [M, 3]; ValueError for points the chart folds."""
-        rel = np.asarray(points, dtype=np.float64) - self.centre
-        x, y = rel @ self.e1, rel @ self.e2
-        if not self.spherical:
-            return np.stack([x, y], axis=1)
-        polar = np.arctan2(np.hypot(x, y), rel @ self.axis)
-        if polar.max(initial=0.0) > math.radians(MAX_POLAR_DEG):
-            raise ValueError(f"{name} must lie within {MAX_POLAR_DEG:g} degrees of the roots' mean "
-                             f"direction seen from the head centre, got "
-                             f"{math.degrees(polar.max()):.1f} degrees")
-        azimuth = np.arctan2(y, x)
-        return self.radius * polar[:, None] * np.stack([np.cos(azimuth), np.sin(azimuth)], axis=1)
-
-
-def _perpendicular(n):
-    """A unit vector perpendicular to each unit vector n [M, 3] (deterministic)."""
-    helper = np.where(np.abs(n[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u = np.cross(n, helper)
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
-def _circumcircles(p, tri):
-    """Circumcentres [T, 2] and squared radii [T] of triangles `tri` [T, 3] over points p."""
-    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    ab, ac = b - a, c - a
-    d = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
-    sb, sc = (ab ** 2).sum(1), (ac ** 2).sum(1)
-    off = np.stack([ac[:, 1] * sb - ab[:, 1] * sc, ab[:, 0] * sc - ac[:, 0] * sb], axis=1) / d[:, None]
-    return a + off, (off ** 2).sum(1)
-
-
-def _orient(a, b, c):
-    """Twice the signed area of (a, b, c): > 0 counter-clockwise."""
-    return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-
-
-def delaunay(points) -> np.ndarray:
-    """Delaunay triangles [T, 3] (counter-clockwise vertex indices) of 2D points [M, 2].
-
-    Bowyer-Watson with a large enclosing triangle; O(M^2), fine for thousands of guides. The
-    cavity of each insertion is grown until every boundary edge faces the new point, so
-    round-off on nearly cocircular points (regular grids) cannot produce overlapping triangles."""
-    pts = np.asarray(points, dtype=np.float64)
-    lo, span = pts.min(0), np.ptp(pts, axis=0).max()
-    if len(pts) < 3 or not span > 0:
-        raise ValueError(f"points must hold at least 3 distinct 2D points, got {len(pts)}")
-    if len(np.unique(pts, axis=0)) < len(pts):
-        raise ValueError("points must be distinct, got duplicates")
-    p = np.concatenate([(pts - lo) / span, [[-1e4, -1e4], [3e4, -1e4], [-1e4, 3e4]]])
-    m = len(pts)
-    tri = np.array([[m, m + 1, m + 2]])
-    cc, r2 = _circumcircles(p, tri)
-    for i in range(m):
-        bad = ((cc - p[i]) ** 2).sum(1) < r2
-        if not bad.any():  # round-off: fall back on the triangle that contains the point
-            bad[np.argmax([min(_orient(p[a], p[b], p[i]), _orient(p[b], p[c], p[i]),
-                               _orient(p[c], p[a], p[i])) for a, b, c in tri])] = True
-        edges = _cavity_boundary(p, tri, bad, i)
-        new = np.array([[a, b, i] for a, b in edges])
-        ncc, nr2 = _circumcircles(p, new)
-        tri, cc, r2 = (np.concatenate([tri[~bad], new]), np.concatenate([cc[~bad], ncc]),
-                       np.concatenate([r2[~bad], nr2]))
-    keep = (tri < m).all(1)
-    if not keep.any():
-        raise ValueError("points are collinear: no triangle can be built")
-    return tri[keep]
-
-
-def _cavity_boundary(p, tri, bad, i):
-    """Boundary edges (a, b) of the cavity `bad` (grown in place until every edge sees p[i])."""
-    for _ in range(len(tri)):
-        edges = [e for a, b, c in tri[bad].tolist() for e in ((a, b), (b, c), (c, a))]
-        count = Counter(frozenset(e) for e in edges)  # an interior edge is shared by two
-        edges = [e for e in edges if count[frozenset(e)] == 1]
-        hidden = [e for e in edges if _orient(p[e[0]], p[e[1]], p[i]) <= 0.0]
-        if not hidden:
-            return edges
-        a, b = hidden[0]
-        across = (((tri[:, 0] == b) & (tri[:, 1] == a)) | ((tri[:, 1] == b) & (tri[:, 2] == a))
-                  | ((tri[:, 2] == b) & (tri[:, 0] == a))) & ~bad
-        bad |= across
-    raise RuntimeError("Delaunay cavity did not close")  # unreachable: the cavity only grows
-
-
-@ti.kernel
-def _locate(p: ti.types.ndarray(dtype=vec2, ndim=1), v: ti.types.ndarray(dtype=vec2, ndim=1),
-            tri: ti.types.ndarray(dtype=ivec3, ndim=1), out_tri: ti.types.ndarray(dtype=ti.i32, ndim=1),
-            out_w: ti.types.ndarray(dtype=vec3, ndim=1)):
-    """Nearest triangle of each chart point p [D] (distance 0 when inside) and the barycentric
-    weights of the nearest point of that triangle. One thread per point, all triangles scanned,
-    bounding boxes first."""
-    for d in p:
-        best, best_t, best_w = 1e30, 0, vec3(1.0, 0.0, 0.0)
-        for t in range(tri.shape[0]):
-            a, b, c = v[tri[t][0]], v[tri[t][1]], v[tri[t][2]]
-            gap = ti.max(ti.min(a, b, c) - p[d], p[d] - ti.max(a, b, c), 0.0)
-            if gap.norm() < best:
-                dist, w = _nearest_in_triangle(p[d], a, b, c)
-                if dist < best:
-                    best, best_t, best_w = dist, t, w
-        out_tri[d], out_w[d] = best_t, best_w
-
-
-@ti.func
-def _nearest_in_triangle(x, a, b, c):
-    """(distance, barycentric weights) of the point of triangle abc nearest to x (2D)."""
-    ab, ac, ax = b - a, c - a, x - a
-    det = ab[0] * ac[1] - ab[1] * ac[0]
-    flat = det <= 0.0  # a sliver flattened by round-off: only its edges count
-    det = ti.select(flat, 1.0, det)
-    wb = (ax[0] * ac[1] - ax[1] * ac[0]) / det
-    wc = (ab[0] * ax[1] - ab[1] * ax[0]) / det
-    dist, w = 0.0, vec3(1.0 - wb - wc, wb, wc)
-    if flat or ti.min(w[0], w[1], w[2]) < 0.0:
-        dist = 1e30
-        for k in ti.static(range(3)):
-            s, e = ti.static(k, (k + 1) % 3)
-            ps, pe = (a, b, c)[s], (a, b, c)[e]
-            seg = pe - ps
-            f = ti.math.clamp((x - ps).dot(seg) / seg.dot(seg), 0.0, 1.0)
-            dk = (x - ps - f * seg).norm()
-            if dk < dist:
-                dist = dk
-                w = vec3(0.0)
-                w[s], w[e] = 1.0 - f, f
-    return dist, w
+ivec5 = ti.types.vector(5, ti.i32)  # integer element types do not depend on the float precision
+Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)
+Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)
+Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # `float` resolves when the kernel compiles
 
 
 # ---------------------------------------------------------------- per-frame kernels
@@ -220,15 +54,25 @@ def _transport(a, b, x):
     return out
 
 
+@ti.func
+def _rotate(head: ti.template(), v):
+    """R v for the head pose head[0..2] = rows of R (head[3] = t is not used)."""
+    return vec3(head[0].dot(v), head[1].dot(v), head[2].dot(v))
+
+
+@ti.func
+def _unrotate(head: ti.template(), v):
+    """R^T v for the head pose head[0..2] = rows of R."""
+    return v[0] * head[0] + v[1] * head[1] + v[2] * head[2]
+
+
 @ti.kernel
-def _guide_frames(x: ti.types.ndarray(dtype=vec3, ndim=2), normal: ti.types.ndarray(dtype=vec3, ndim=1),
-                  u_rest: ti.types.ndarray(dtype=vec3, ndim=1), rot: ti.math.mat3,
-                  t_out: ti.types.ndarray(dtype=vec3, ndim=2), u_out: ti.types.ndarray(dtype=vec3, ndim=2)):
+def _guide_frames(x: Vec3s2, normal: Vec3s1, u_rest: Vec3s1, head: Vec3s1, t_out: Vec3s2, u_out: Vec3s2):
     """Bishop frame (t^j, u^j) of every guide edge j: u^0 is the rest reference u (carried by the
-    head rotation `rot`) transported from the root normal to t^0, then edge to edge. One thread
-    per guide; the transport is serial along its strand."""
+    head rotation, head [4] = rows of R then t) transported from the root normal to t^0, then
+    edge to edge. One thread per guide; the transport is serial along its strand."""
     for g in range(x.shape[0]):
-        t_prev, u = rot @ normal[g], rot @ u_rest[g]
+        t_prev, u = _rotate(head, normal[g]), _rotate(head, u_rest[g])
         for j in range(x.shape[1] - 1):
             e = x[g, j + 1] - x[g, j]
             t = t_prev
@@ -268,29 +112,27 @@ def _hash01(key, i):
 
 
 @ti.kernel
-def _dense_nodes(x: ti.types.ndarray(dtype=vec3, ndim=2), t: ti.types.ndarray(dtype=vec3, ndim=2),
-                 u: ti.types.ndarray(dtype=vec3, ndim=2), idx: ti.types.ndarray(dtype=ivec5, ndim=1),
-                 w: ti.types.ndarray(dtype=vec3, ndim=1), rel: ti.types.ndarray(dtype=vec3, ndim=2),
-                 local: ti.types.ndarray(dtype=vec3, ndim=1), par: ti.types.ndarray(dtype=vec5, ndim=1),
-                 rot: ti.math.mat3, out: ti.types.ndarray(dtype=vec3, ndim=2)):
+def _dense_nodes(x: Vec3s2, t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1),
+                 w: Vec3s1, rel: Vec3s2, local: Vec3s1, par: Scalars2, head: Vec3s1, out: Vec3s2):
     """Dense nodes out[d, i] [m]. idx[d] = (3 triangle guides, clump guide, frizz key); w[d] the
     triangle weights; rel[d, k] = rest dense root - rest root of guide k (triangle, then clump);
     local[d] the clump offset in the clump guide's rest root frame (u, v, normal);
-    par[d] = (blend, start node, node step, frizz amplitude [m], clump offset scale at the tip).
+    par[d, :] = (blend, start node, node step, frizz amplitude [m], clump offset scale at the
+    tip); head [4] the head pose (rows of R, then t).
     One thread per dense strand: the terms shared by its nodes are computed once, then the
     nodes (independent of each other) in a loop."""
     n = x.shape[1]
     for d in range(out.shape[0]):
-        blend, q0, step, frizz, tip = par[d][0], par[d][1], par[d][2], par[d][3], par[d][4]
+        blend, q0, step, frizz, tip = par[d, 0], par[d, 1], par[d, 2], par[d, 3], par[d, 4]
         k0, k1, k2, g, key = idx[d][0], idx[d][1], idx[d][2], idx[d][3], idx[d][4]
         wd, off = w[d], local[d]
         # each guide carries the dense root rigidly with the head from its own root
-        base_b = (wd[0] * (x[k0, 0] + rot @ rel[d, 0] - _at(x, k0, q0))
-                  + wd[1] * (x[k1, 0] + rot @ rel[d, 1] - _at(x, k1, q0))
-                  + wd[2] * (x[k2, 0] + rot @ rel[d, 2] - _at(x, k2, q0)))
+        base_b = (wd[0] * (x[k0, 0] + _rotate(head, rel[d, 0]) - _at(x, k0, q0))
+                  + wd[1] * (x[k1, 0] + _rotate(head, rel[d, 1]) - _at(x, k1, q0))
+                  + wd[2] * (x[k2, 0] + _rotate(head, rel[d, 2]) - _at(x, k2, q0)))
         j0 = _edge(q0, n)
         # the root offset is subtracted as carried by the start frame, so node 0 is the root
-        base_c = (x[g, 0] + rot @ rel[d, 3] - _at(x, g, q0)
+        base_c = (x[g, 0] + _rotate(head, rel[d, 3]) - _at(x, g, q0)
                   - (off[0] * u[g, j0] + off[1] * t[g, j0].cross(u[g, j0]) + off[2] * t[g, j0]))
         for i in range(n):
             q = q0 + i * step
@@ -327,16 +169,18 @@ def _nearest_on_ellipsoid(p, r):
 
 
 @ti.kernel
-def _push_out_of_ellipsoid(out: ti.types.ndarray(dtype=vec3, ndim=2), centre: vec3, radii: vec3,
-                           rot: ti.math.mat3, margin: float):
-    """Move non-root nodes closer than `margin` [m] to the ellipsoid (centre [m], semi-axes
-    `radii` [m] along the columns of `rot`) to its surface point + margin along the normal.
+def _push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
+    """Move non-root nodes closer than the margin to the ellipsoid to its surface point + margin
+    along the normal. shape [3] = (rest centre [m], semi-axes [m] along the rest axes, (margin
+    [m], 0, 0)); the head pose head [4] (rows of R, then t) carries centre and axes.
     One thread per (strand, node)."""
+    radii, margin = shape[1], shape[2][0]
+    centre = _rotate(head, shape[0]) + head[3]
     reach = ti.max(radii[0], radii[1], radii[2]) + margin
     for d, i in ti.ndrange(out.shape[0], out.shape[1]):
         rel = out[d, i] - centre
         if i > 0 and rel.norm() < reach:
-            p = rot.transpose() @ rel
+            p = _unrotate(head, rel)
             if p.norm() < 1e-9 * reach:  # the centre itself: leave along the shortest axis
                 rmin = ti.min(radii[0], radii[1], radii[2])
                 p = 1e-6 * reach * ti.cast(radii == rmin, float).normalized()
@@ -346,7 +190,40 @@ def _push_out_of_ellipsoid(out: ti.types.ndarray(dtype=vec3, ndim=2), centre: ve
             inside = ((p / radii) ** 2).sum() < 1.0
             dist = (p - y).norm() * ti.select(inside, -1.0, 1.0)
             if dist < margin:
-                out[d, i] = centre + rot @ (y + margin * (y / (radii * radii)).normalized())
+                out[d, i] = centre + _rotate(head, y + margin * (y / (radii * radii)).normalized())
+
+
+@ti.func
+def _node_frame(d, i, n, t: ti.template(), u: ti.template(), idx: ti.template(), par: ti.template()):
+    """(u, v, t) of the clump guide's edge that carries node i of dense strand d (as in
+    `_dense_nodes`)."""
+    j, g = _edge(par[d, 1] + i * par[d, 2], n), idx[d][3]
+    return u[g, j], t[g, j].cross(u[g, j]), t[g, j]
+
+
+@ti.kernel
+def _detail_in_frames(t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), par: Scalars2,
+                      rest: Vec3s2, interpolated: Vec3s2, detail: Vec3s2):
+    """detail[d, i] = rest - interpolated [m] of node i in its carrying frame (u, v, t), computed
+    once with the guides at rest; 0 at the root, which the interpolation already places.
+    One thread per (strand, node)."""
+    n = rest.shape[1]
+    for d, i in ti.ndrange(rest.shape[0], n):
+        a, b, c = _node_frame(d, i, n, t, u, idx, par)
+        r = rest[d, i] - interpolated[d, i]
+        detail[d, i] = ti.select(i > 0, vec3(r.dot(a), r.dot(b), r.dot(c)), vec3(0.0))
+
+
+@ti.kernel
+def _add_detail(t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), par: Scalars2,
+                detail: Vec3s2, out: Vec3s2):
+    """out[d, i] += the rest detail carried by the node's frame as it is now [m].
+    One thread per (strand, node)."""
+    n = out.shape[1]
+    for d, i in ti.ndrange(out.shape[0], n):
+        a, b, c = _node_frame(d, i, n, t, u, idx, par)
+        k = detail[d, i]
+        out[d, i] += k[0] * a + k[1] * b + k[2] * c
 
 
 # ---------------------------------------------------------------- the interpolator
@@ -373,16 +250,24 @@ class Interpolator:
     head: None; a sphere or ellipsoid (centre [3] m, radius m or semi-axes [3] m, axis-aligned
         at rest), which pushes non-root nodes out to its surface + head_margin [m] in a kernel;
         or a callable mapping points [M, 3] to pushed points [M, 3] (runs on the host).
+    rest_guides [G, n_nodes, 3], rest_shapes [D, n_nodes, 3] (m), given together: the guides'
+        rest positions and the shapes the dense strands must have when the guides are there
+        (an imported hairstyle). Each dense node's difference from its interpolated rest
+        position is stored in the rest Bishop frame of its clump guide's edge and added back
+        in that frame as it moves, so at rest the output is rest_shapes (to round-off) and it
+        moves rigidly with the head. Node 0 of rest_shapes must be dense_roots (1e-6 m).
+        A head collider still acts on top: rest nodes within head_margin of it are moved.
     """
 
     def __init__(self, guide_roots, guide_normals, dense_roots, n_nodes, *, mode="blend",
                  blend=0.5, clump_radius=None, frizz=0.0, length_variation=0.0,
-                 curl_phase_variation=0.0, seed=0, head=None, head_margin=0.002):
+                 curl_phase_variation=0.0, seed=0, head=None, head_margin=0.002,
+                 rest_guides=None, rest_shapes=None):
         ensure_init()
         roots, normals, dense = _check_setup(guide_roots, guide_normals, dense_roots, n_nodes)
         self.n_guides, self.n_dense, self.n_nodes = len(roots), len(dense), int(n_nodes)
+        rest = _check_rest(rest_guides, rest_shapes, roots, dense, self.n_nodes)
         self._head, self._ellipsoid = _check_head(head, head_margin)
-        self._margin = float(head_margin)
         self._dtype = np.float32 if precision() == "float32" else np.float64
         centre = None if self._ellipsoid is None else self._ellipsoid[0]
         chart = ScalpChart.fit(roots, normals, centre)
@@ -390,37 +275,51 @@ class Interpolator:
             self.triangles = delaunay(chart.project(roots, "guide_roots"))
         except ValueError as exc:
             raise ValueError(f"guide_roots cannot be triangulated on the scalp: {exc}") from None
-        tri_of, weights = self._locate(chart.project(dense, "dense_roots"), chart.project(roots))
-        corners = self.triangles[tri_of]
-        nearest = _nearest(dense, roots)
-        u_rest = _perpendicular(normals)
-        offset = dense - roots[nearest]
-        local = np.stack([(offset * u_rest[nearest]).sum(1),
-                          (offset * np.cross(normals, u_rest)[nearest]).sum(1),
-                          (offset * normals[nearest]).sum(1)], axis=1)
+        tri_of, self.weights = locate(chart.project(dense, "dense_roots"), chart.project(roots),
+                                      self.triangles)
+        self.corners, self.guide_of = self.triangles[tri_of], nearest(dense, roots)
         par, keys = _variation(self.n_dense, self.n_nodes, mode, blend, clump_radius, frizz,
                                length_variation, curl_phase_variation, seed,
-                               np.linalg.norm(offset, axis=1))
-        rel = dense[:, None, :] - roots[np.concatenate([corners, nearest[:, None]], axis=1)]
-        self.weights, self.guide_of, self.corners = weights, nearest, corners
-        d, g, n = self.n_dense, self.n_guides, self.n_nodes
-        self._idx = _upload(np.concatenate([corners, nearest[:, None], keys[:, None]], 1), ivec5, (d,), np.int32)
-        self._w = _upload(weights, vec3, (d,), self._dtype)
-        self._rel = _upload(rel, vec3, (d, 4), self._dtype)
-        self._local = _upload(local, vec3, (d,), self._dtype)
-        self._par = _upload(par, vec5, (d,), self._dtype)
-        self._normal = _upload(normals, vec3, (g,), self._dtype)
-        self._u_rest = _upload(u_rest, vec3, (g,), self._dtype)
+                               np.linalg.norm(dense - roots[self.guide_of], axis=1))
+        self._upload_strands(roots, normals, dense, par, keys)
+        self._pose = _upload(np.vstack([np.eye(3), np.zeros(3)]), vec3, (4,), self._dtype)
+        if self._ellipsoid is not None:
+            c, r = self._ellipsoid
+            self._shape = _upload([c, r, (float(head_margin), 0.0, 0.0)], vec3, (3,), self._dtype)
+        g, d, n = self.n_guides, self.n_dense, self.n_nodes
         self._t, self._u = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
         self._out = ti.ndarray(vec3, (d, n))
+        self._detail = None
+        if rest is not None:
+            self._detail = self._fit_rest_detail(*rest)
 
-    def _locate(self, dense2, guide2):
-        tri_of = ti.ndarray(ti.i32, (len(dense2),))
-        weights = ti.ndarray(vec3, (len(dense2),))
-        _locate(_upload(dense2, vec2, (len(dense2),), self._dtype),
-                _upload(guide2, vec2, (len(guide2),), self._dtype),
-                _upload(self.triangles, ivec3, (len(self.triangles),), np.int32), tri_of, weights)
-        return tri_of.to_numpy().astype(np.int64), weights.to_numpy().astype(np.float64)
+    def _upload_strands(self, roots, normals, dense, par, keys):
+        """Upload the per-strand geometry and parameters (see `_dense_nodes`)."""
+        d, g = self.n_dense, self.n_guides
+        u_rest = perpendicular(normals)
+        offset = dense - roots[self.guide_of]
+        frame = np.stack([u_rest, np.cross(normals, u_rest), normals], axis=1)[self.guide_of]
+        local = np.einsum("dj,dkj->dk", offset, frame)  # offset in the guide's (u, v, normal)
+        rel = dense[:, None, :] - roots[np.concatenate([self.corners, self.guide_of[:, None]], axis=1)]
+        self._w = _upload(self.weights, vec3, (d,), self._dtype)
+        self._rel = _upload(rel, vec3, (d, 4), self._dtype)
+        self._local = _upload(local, vec3, (d,), self._dtype)
+        self._normal = _upload(normals, vec3, (g,), self._dtype)
+        self._u_rest = _upload(u_rest, vec3, (g,), self._dtype)
+        self._idx = _upload(np.concatenate([self.corners, self.guide_of[:, None], keys[:, None]], axis=1),
+                            ivec5, (d,), np.int32)
+        self._par = ti.ndarray(float, (d, 5))  # `float` resolves to the precision now, not at import
+        self._par.from_numpy(np.ascontiguousarray(par, dtype=self._dtype))
+
+    def _fit_rest_detail(self, rest_guides, rest_shapes):
+        """Detail [D, n_nodes] vec3: each rest node's offset from its interpolated rest position
+        in its carrying frame (see `_detail_in_frames`)."""
+        interpolated = self._out
+        self._run(rest_guides, interpolated, None, None, collide=False)
+        shapes = _upload(rest_shapes, vec3, (self.n_dense, self.n_nodes), self._dtype)
+        detail = ti.ndarray(vec3, (self.n_dense, self.n_nodes))
+        _detail_in_frames(self._t, self._u, self._idx, self._par, shapes, interpolated, detail)
+        return detail
 
     def interpolate(self, guide_positions, head_rotation=None, head_translation=None, out=None):
         """Dense node positions [D, n_nodes, 3] (m) as numpy.
@@ -454,20 +353,20 @@ class Interpolator:
             self._out.from_numpy(pts)
         return self._out
 
-    def _run(self, guide_positions, out, head_rotation, head_translation):
+    def _run(self, guide_positions, out, head_rotation, head_translation, collide=True):
         x = self._guides_in(guide_positions)
         rot = _check_rotation(head_rotation)
         trans = np.zeros(3) if head_translation is None else np.asarray(head_translation, np.float64)
         if trans.shape != (3,) or not np.all(np.isfinite(trans)):
             raise ValueError(f"head_translation must be 3 finite numbers (m), got {head_translation!r}")
-        rot_ti = ti.Matrix(rot.tolist())
-        _guide_frames(x, self._normal, self._u_rest, rot_ti, self._t, self._u)
+        self._pose.from_numpy(np.vstack([rot, trans]).astype(self._dtype))
+        _guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
         _dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
-                     rot_ti, out)
-        if self._ellipsoid is not None:
-            c, r = self._ellipsoid
-            _push_out_of_ellipsoid(out, ti.Vector((rot @ c + trans).tolist()), ti.Vector(r.tolist()),
-                                   rot_ti, self._margin)
+                     self._pose, out)
+        if self._detail is not None:
+            _add_detail(self._t, self._u, self._idx, self._par, self._detail, out)
+        if collide and self._ellipsoid is not None:
+            _push_out_of_ellipsoid(out, self._pose, self._shape)
 
     def _collide_on_host(self, pts):
         moved = np.asarray(self._head(pts.reshape(-1, 3)), dtype=pts.dtype)
@@ -522,6 +421,28 @@ def _check_setup(guide_roots, guide_normals, dense_roots, n_nodes):
     return roots, normals / norm, dense
 
 
+def _check_rest(rest_guides, rest_shapes, roots, dense, n_nodes):
+    """(rest_guides [G, n, 3], rest_shapes [D, n, 3]) float64, or None when neither is given."""
+    if rest_guides is None and rest_shapes is None:
+        return None
+    if rest_guides is None or rest_shapes is None:
+        raise ValueError("rest_guides and rest_shapes must be given together (or neither), got "
+                         f"only {'rest_guides' if rest_shapes is None else 'rest_shapes'}")
+    out = []
+    for name, value, r in (("rest_guides", rest_guides, roots), ("rest_shapes", rest_shapes, dense)):
+        arr = np.asarray(value, dtype=np.float64)
+        if arr.shape != (len(r), n_nodes, 3):
+            raise ValueError(f"{name} must have shape [{len(r)}, {n_nodes}, 3], got {list(arr.shape)}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite, got NaN or inf")
+        gap = np.linalg.norm(arr[:, 0] - r, axis=1).max()
+        if gap > 1e-6:
+            root_name = "guide_roots" if name == "rest_guides" else "dense_roots"
+            raise ValueError(f"{name}[:, 0] must be {root_name} (within 1e-6 m), got {gap:.3g} m away")
+        out.append(arr)
+    return out
+
+
 def _check_head(head, margin):
     if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
         raise ValueError(f"head_margin must be a finite number >= 0 m, got {margin!r}")
@@ -546,16 +467,6 @@ def _check_rotation(rotation):
     if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
         raise ValueError(f"head_rotation must be a 3x3 rotation matrix (orthonormal, det +1), got {rotation!r}")
     return rot
-
-
-def _nearest(points, targets, chunk=4096):
-    """Index [M] of the nearest target [T, 3] to each point [M, 3]."""
-    out = np.empty(len(points), dtype=np.int64)
-    t2 = (targets ** 2).sum(1)
-    for s in range(0, len(points), chunk):
-        p = points[s:s + chunk]
-        out[s:s + chunk] = np.argmin(t2[None, :] - 2.0 * p @ targets.T, axis=1)
-    return out
 
 
 def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variation,
@@ -590,27 +501,11 @@ def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variat
 
 # ---------------------------------------------------------------- small helpers and benchmark
 
-def sample_scalp_roots(n, *, radius=0.1, centre=(0.0, 0.0, 0.0), max_polar_deg=70.0):
-    """n roots [n, 3] (m) and outward normals [n, 3] spread evenly (Fibonacci spiral) over the
-    cap of a sphere of `radius` [m] within `max_polar_deg` of +z. A stand-in for tests and
-    benchmarks, not a scalp sampler."""
-    if not (isinstance(n, (int, np.integer)) and n >= 1):
-        raise ValueError(f"n must be an integer >= 1, got {n!r}")
-    if not 0 < max_polar_deg <= 180:
-        raise ValueError(f"max_polar_deg must be in (0, 180] degrees, got {max_polar_deg!r}")
-    k = np.arange(n) + 0.5
-    cos_polar = 1.0 - (1.0 - math.cos(math.radians(max_polar_deg))) * k / n
-    azimuth = k * math.pi * (3.0 - math.sqrt(5.0))  # golden angle
-    sin_polar = np.sqrt(1.0 - cos_polar ** 2)
-    normals = np.stack([sin_polar * np.cos(azimuth), sin_polar * np.sin(azimuth), cos_polar], axis=1)
-    return np.asarray(centre, dtype=np.float64) + radius * normals, normals
-
-
 def _curly_guides(roots, normals, n_nodes, length=0.2, curl_radius=0.01, pitch=0.02):
     """Helices [G, n_nodes, 3] (m) growing along the normals from the roots (benchmark data)."""
     rise = pitch / (2 * math.pi)
     s = (np.linspace(0.0, length, n_nodes) / math.hypot(curl_radius, rise))[None, :, None]
-    side = _perpendicular(normals)[:, None]
+    side = perpendicular(normals)[:, None]
     return (roots[:, None] + curl_radius * (np.cos(s) - 1.0) * side + rise * s * normals[:, None]
             + curl_radius * np.sin(s) * np.cross(normals[:, None], side))
 

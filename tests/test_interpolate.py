@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import taichi as ti
 
+from helpers import rotation_matrix
+
 from taichi_hair.interpolate import (Interpolator, ScalpChart, bench_interpolation, delaunay,
                                      sample_scalp_roots)
 
@@ -150,6 +152,135 @@ def test_rigid_head_motion_moves_dense_hair_rigidly(kwargs):
     trans = np.array([0.02, -0.05, 0.1])
     moved = interp.interpolate(guides @ rot.T + trans, head_rotation=rot, head_translation=trans)
     np.testing.assert_allclose(moved, rest @ rot.T + trans, atol=1e-12)
+
+
+def wavy_rest_shapes(dense, n_nodes, seed=8):
+    """Dense strands of their own shape [D, n, 3]: a random wave about +z from each root."""
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 0.2, n_nodes)[None, :, None]
+    side = rng.normal(size=(len(dense), 1, 3)) * np.array([1.0, 1.0, 0.0])
+    phase = rng.uniform(0, 6, (len(dense), 1, 1))
+    return dense[:, None] + s * np.array([0.0, 0.2, 1.0]) + 0.01 * (np.sin(30 * s + phase) - np.sin(phase)) * side
+
+
+@pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
+def test_rest_shapes_are_reproduced_at_rest_and_moved_rigidly(kwargs):
+    roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=16)
+    dense = random_cap(60, max_polar_deg=45.0)
+    shapes = wavy_rest_shapes(dense, 16)
+    interp = build(kwargs, roots, normals, dense, 16, frizz=0.002, clump_radius=0.003,
+                   length_variation=0.2, rest_guides=guides, rest_shapes=shapes)
+    rest = interp.interpolate(guides)
+    np.testing.assert_allclose(rest, shapes, rtol=0, atol=1e-12)
+    plain = build(kwargs, roots, normals, dense, 16).interpolate(guides)
+    assert np.abs(plain - shapes).max() > 0.01  # not vacuous: the interpolation alone is far off
+    rot, trans = rotation_matrix([0.3, -0.5, 0.8], 1.1), np.array([0.02, -0.05, 0.1])
+    moved = interp.interpolate(guides @ rot.T + trans, head_rotation=rot, head_translation=trans)
+    np.testing.assert_allclose(moved, shapes @ rot.T + trans, rtol=0, atol=1e-12)
+
+
+def test_rest_shapes_the_interpolation_already_makes_change_nothing_as_guides_move():
+    """Zero detail is carried as zero: with rest shapes equal to the plain interpolation of the
+    rest guides, bent guides give the plain interpolation of the bent guides."""
+    roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
+    guides = helices(roots, normals, n_nodes=16)
+    dense = random_cap(60, max_polar_deg=45.0)
+    plain = Interpolator(roots, normals, dense, 16)
+    shapes = plain.interpolate(guides).copy()
+    bent = guides + 0.3 * (guides - guides[:, :1]) ** 2 * np.array([1.0, -2.0, 0.5])
+    with_rest = Interpolator(roots, normals, dense, 16, rest_guides=guides, rest_shapes=shapes)
+    np.testing.assert_allclose(with_rest.interpolate(bent), plain.interpolate(bent), rtol=0, atol=1e-12)
+
+
+def test_rest_detail_turns_with_the_guide_it_rides_on():
+    """Straight guides along +z turned 90 degrees at the root to run along +x. A dense strand
+    1 mm x 1 mm from guide 0's root whose rest shape runs 4 mm beside the guide along +x: the
+    clump keeps the root offset (0.001, 0.001, 0), and the 4 mm detail, which lay along the
+    guide's rest Bishop vector -v = +x (u = z x x = +y, v = t x u = -x), turns with the frame
+    (transported from z to x about y: u stays +y, v = x x y = +z) to -v = -z."""
+    roots = np.array([[0.0, 0.0, 0.1], [0.05, 0.0, 0.1], [0.0, 0.05, 0.1]])
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    s = np.linspace(0, 0.2, 11)[None, :, None]
+    up = roots[:, None] + s * np.array([0.0, 0.0, 1.0])
+    dense = roots[:1] + np.array([[0.001, 0.001, 0.0]])
+    shape = dense[:, None] + s * np.array([0.0, 0.0, 1.0])
+    shape[:, 1:, 0] += 0.004
+    interp = Interpolator(roots, normals, dense, 11, mode="clump", rest_guides=up, rest_shapes=shape)
+    np.testing.assert_allclose(interp.interpolate(up), shape, rtol=0, atol=1e-15)
+    sideways = roots[:, None] + s * np.array([1.0, 0.0, 0.0])
+    out = interp.interpolate(sideways)[0]
+    np.testing.assert_allclose(out[0], dense[0], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(out[1:], sideways[0, 1:] + [0.001, 0.001, -0.004], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("kwargs, phrase", [
+    (dict(rest_guides="guides"), "rest_guides and rest_shapes must be given together"),
+    (dict(rest_shapes="shapes"), "rest_guides and rest_shapes must be given together"),
+    (dict(rest_guides="guides", rest_shapes="short"), r"rest_shapes must have shape \[40, 8, 3\]"),
+    (dict(rest_guides="guides", rest_shapes="moved"), r"rest_shapes\[:, 0\] must be dense_roots"),
+    (dict(rest_guides="moved", rest_shapes="shapes"), r"rest_guides\[:, 0\] must be guide_roots"),
+    (dict(rest_guides="guides", rest_shapes="nan"), "rest_shapes must be finite"),
+])
+def test_bad_rest_shapes_raise_value_errors_naming_them(kwargs, phrase):
+    roots, normals = sample_scalp_roots(10)
+    dense = random_cap(40)
+    guides = helices(roots, normals, n_nodes=8)
+    shapes = wavy_rest_shapes(dense, 8)
+    nan = shapes.copy()
+    nan[3, 4, 1] = np.nan
+    values = {"guides": guides, "shapes": shapes, "short": shapes[:, :7], "nan": nan}
+    values["moved"] = (guides if kwargs.get("rest_guides") == "moved" else shapes) + 1e-5
+    with pytest.raises(ValueError, match=phrase):
+        Interpolator(roots, normals, dense, 8, **{k: values[v] for k, v in kwargs.items()})
+
+
+IMPORT_FIRST_SCRIPT = """
+import math, sys
+import numpy as np
+import taichi_hair.interpolate  # kernels and types defined before the precision is chosen
+import taichi_hair as th
+th.init("cpu", "float64")
+sys.path.insert(0, "tests")
+from helpers import rotation_matrix
+from taichi_hair.interpolate import Interpolator, sample_scalp_roots
+roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
+s = np.linspace(0.0, 0.2, 16)[None, :, None]
+guides = roots[:, None] + s * normals[:, None] + 0.01 * np.sin(40 * s) * np.array([1.0, 0.0, 0.0])
+dense = sample_scalp_roots(80, max_polar_deg=48.0)[0] * 1.0
+kw = dict(head=((0.0, 0.0, 0.0), 0.1), length_variation=0.3)
+bary = Interpolator(roots, normals, dense, 16, mode="barycentric", **kw).interpolate(guides)
+clump = Interpolator(roots, normals, dense, 16, mode="clump", **kw).interpolate(guides)
+third = Interpolator(roots, normals, dense, 16, mode="blend", blend=1 / 3, **kw)
+rest = third.interpolate(guides)
+rot, trans = rotation_matrix([0.3, -0.5, 0.8], 0.7), np.array([0.02, -0.05, 0.1])
+moved = third.interpolate(guides @ rot.T + trans, head_rotation=rot, head_translation=trans)
+print(rest.dtype, np.abs(rest - (2 / 3 * bary + 1 / 3 * clump)).max(),
+      np.abs(moved - (rest @ rot.T + trans)).max())
+"""
+
+
+def run_script(script):
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-c", script], cwd=root, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return run.stdout.split()
+
+
+def test_float64_holds_when_the_module_is_imported_before_init():
+    """Element and argument types built from Python `float` at import time would stay float32
+    (Taichi fixes them when built): per-strand parameters and the head pose must still arrive
+    in float64. Blend is linear in the two modes (exactly, in float64), and a generic head
+    rotation moves the hair rigidly."""
+    dtype, blend_err, rigid_err = run_script(IMPORT_FIRST_SCRIPT)[-3:]
+    assert dtype == "float64"
+    assert float(blend_err) < 1e-12  # float32 parameters: ~4e-10
+    assert float(rigid_err) < 1e-12
 
 
 def hanging_setup(n_nodes=20):
@@ -371,14 +502,6 @@ print(np.abs(free - guides[[2, 11]]).max(), gap, err)
 
 
 def test_float32_process_reproduces_guides_and_keeps_the_margin():
-    import os
-    import subprocess
-    import sys
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    run = subprocess.run([sys.executable, "-c", FLOAT32_SCRIPT], cwd=root, env=env,
-                         capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr[-2000:]
-    reproduce, gap, repeat = map(float, run.stdout.split()[-3:])
+    reproduce, gap, repeat = map(float, run_script(FLOAT32_SCRIPT)[-3:])
     assert reproduce < 1e-6  # metres, float32 round-off on 0.25 m strands
     assert gap > -1e-6 and repeat == 0.0
