@@ -18,7 +18,9 @@ vec4 = ti.math.vec4
 
 Scalars1 = ti.types.ndarray(dtype=float, ndim=1)  # [S]
 Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # [S, N] or [S, N - 1]
+Scalars3 = ti.types.ndarray(dtype=float, ndim=3)  # grids [nx, ny, nz]
 Ints1 = ti.types.ndarray(dtype=ti.i32, ndim=1)  # [S]
+Ints2 = ti.types.ndarray(dtype=ti.i32, ndim=2)  # [S, k]
 Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)  # [S]
 Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)

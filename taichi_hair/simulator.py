@@ -6,7 +6,6 @@ twist.py and step.py. Units: SI throughout.
 
 import math
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,26 +17,16 @@ from .rod import elastic_forces, strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step
 from .state import build
-from .step import (StepPlan, advance, kmoch_step, place_roots, run_twist_update,
-                   strand_mechanical_energy)
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
+from .forces import Grab, Hand, Wind
+from .interaction import HairInteraction, InteractionGrid
+from .state import COUNTERS
+from .step import StepPlan, advance, kmoch_step, place_roots, run_twist_update, strand_mechanical_energy
 
-MAX_STEPS_PER_LAUNCH = 256  # bounds the per-launch buffer of head poses
+COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
-
-
-@dataclass
-class Control:
-    """What drives a step. head: [1, 4] vec3 ndarray (rows of R, translation t) of the head;
-    head_poses: [K, 4] the same for each of K steps of a launch when the head moves; loads: [2] vec3 ndarray (gravity [m/s^2], wind [m/s]); drag [N s/m per metre];
-    user_force: [S, N] vec3 ndarray [N] or None; max_speed [m/s], the blow-up threshold."""
-
-    head: object
-    head_poses: object
-    loads: object
-    drag: float
-    user_force: object
-    max_speed: float
 
 
 def _vector3(name, value):
@@ -59,72 +48,81 @@ class Simulator:
 
     dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
         with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
-        strand]: each node feels -nu l_i (v - wind), l_i its Voronoi length. wind [m/s].
+        strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
+    wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
     twist: "kmoch" (Kmoch et al.'s rule, meant for elliptic hair), "quasistatic" (Newton on
         dE/dtheta = 0 per strand) or "none" (material angles stay as they are).
     projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
         in float32 the rounding floor of the scene's coordinates if larger, see
-        `default_projection_tol`); projection_iterations caps it. twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ)
-        ending the quasistatic solve (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
+        `default_projection_tol`); projection_iterations caps it.
+    twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ) ending the quasistatic solve
+        (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
     root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
-        `set_root_transform`. max_speed [m/s]: a node faster than this counts as a blow-up.
+        `set_root_transform`.
+    colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
+    touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
+    max_speed [m/s]: a node faster than this counts as a blow-up.
     """
 
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
                  drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "kmoch",
                  projection_tol: float | None = None, projection_iterations: int = 100,
                  twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
-                 strict: bool = False, max_speed: float = 100.0,
-                 stability_factor: float = DEFAULT_STABILITY_FACTOR):
+                 colliders=(), touch=(), hair_interaction=None, strict: bool = False,
+                 max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR):
         ensure_init()
-        if not isinstance(groom, Groom):
-            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
-        if twist not in TWIST_MODES:
-            raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
-        twist_tol = (1e-10 if precision() == "float64" else 1e-5) if twist_tol is None else twist_tol
-        for name, value in (("projection_iterations", projection_iterations),
-                            ("twist_iterations", twist_iterations)):
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-        if not (isinstance(drag, (int, float)) and math.isfinite(drag) and drag >= 0):
-            raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
-        if root_motion is not None and not callable(root_motion):
-            raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")
+        _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
+                         wind, colliders, touch, hair_interaction)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
         self.twist_iterations = twist_iterations
         self.model, self.state = build(groom, material)
-        if projection_tol is None:
-            projection_tol = default_projection_tol(groom)
+        self.touch = tuple(touch)
+        self.root_motion = root_motion
         self.stable_dt = stable_time_step(groom, self.model.materials, drag,
                                           _positive("stability_factor", stability_factor, "", upper=2.0))
+        self.stable_dt = min([self.stable_dt] + [_grab_bound(self.model, g, stability_factor)
+                                                 for g in self.touch if isinstance(g, Grab)])
         self.substeps = self._substeps_for(strict)
+        self.control, facts = build_control(_vector3("gravity", gravity),
+                                            wind if isinstance(wind, Wind) else _vector3("wind", wind),
+                                            drag, tuple(colliders), self.touch,
+                                            _positive("max_speed", max_speed, "m/s"))
+        if facts["wind"] and drag == 0:
+            raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
+                             "(human hair in air: about 1e-4 to 1e-3)")
         self.plan = StepPlan(
-            external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0 or np.any(_vector3("wind", wind))),
-            twist=twist, projection_tol=_positive("projection_tol", projection_tol, "", upper=1.0),
+            external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
+            wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
+            mesh=facts["mesh"], touch=facts["touch"],
+            projection_tol=_positive("projection_tol", default_projection_tol(groom) if projection_tol is None else projection_tol,
+                                     "", upper=1.0),
             projection_iterations=projection_iterations,
-            twist_tol=_positive("twist_tol", twist_tol, ""), twist_iterations=twist_iterations)
-        self.control = Control(
-            head=arrays.vectors(3, (1, 4), np.vstack([np.eye(3), np.zeros((1, 3))])[None]),
-            head_poses=None,
-            loads=arrays.vectors(3, (2,), np.stack([_vector3("gravity", gravity), _vector3("wind", wind)])),
-            drag=float(drag), user_force=None, max_speed=_positive("max_speed", max_speed, "m/s"))
-        self.root_motion = root_motion
+            twist_tol=_positive("twist_tol", _default_twist_tol() if twist_tol is None else twist_tol, ""),
+            twist_iterations=twist_iterations)
         self.time = 0.0
         self.steps_taken = 0
         self._snapshot = None
         self._potential = arrays.scalars((groom.n_strands,))
-        self._head = (np.eye(3), np.zeros(3))
+        self._head = self._head_prev = (np.eye(3), np.zeros(3))
         if root_motion is not None:
             self._place_groom(*self._head_at(0.0))
         self.update_frames()
+        self.interaction = None if hair_interaction is None else InteractionGrid(
+            hair_interaction, groom, self.model, self.state, self._head[1])
+
+    @classmethod
+    def from_scene(cls, scene, dt: float = 1e-3, **options) -> "Simulator":
+        """The simulator of a `Scene`: its groom, material, head colliders and motion, wind,
+        touch tools and hair interaction; `options` go to the constructor (twist, drag, ...)."""
+        return cls(scene.groom, scene.material, dt=dt, **{**scene.simulator_options(), **options})
 
     def _substeps_for(self, strict: bool) -> int:
         if self.dt <= self.stable_dt:
             return 1
         message = (f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
-                   f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment and drag)")
+                   f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag and grab springs)")
         if strict:
             raise ValueError(message + "; lower dt or pass strict=False to substep automatically")
         substeps = math.ceil(self.dt / self.stable_dt)
@@ -138,66 +136,70 @@ class Simulator:
 
     def _place_groom(self, rotation, translation):
         """Put the whole groom rigidly at the head's pose (used for the initial pose only)."""
-        self._head = (rotation, translation)
+        self._head = self._head_prev = (rotation, translation)
         x = self.groom.positions @ rotation.T + translation
         self.state.x.from_numpy(x.astype(arrays.np_float()))
-        self._set_head_control(rotation, translation)
+        self._orient_roots()
 
-    def _set_head_control(self, rotation, translation):
-        self.control.head.from_numpy(np.vstack([rotation, translation])[None].astype(arrays.np_float()))
+    def _orient_roots(self):
+        """Root reference frames at the current head pose (root nodes untouched)."""
+        load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
         st, md = self.state, self.model
-        place_roots(self.control.head, md.root_rest, md.root_tangent, md.root_reference, st.dx,
-                    st.root_t, st.root_u)  # only the reference frames: x goes to dx, a scratch
+        place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+
+    @property
+    def head_transform(self):
+        """(R [3, 3], t [3] m): the head's current pose."""
+        return self._head
 
     def set_root_transform(self, rotation, translation) -> None:
         """Move the head: the root edges follow the rigid transform x -> R x + t of the groom's
         rest pose. Their reference frames turn at once; the root nodes get there during the next
         step (with the velocity that implies). rotation: 3x3 proper rotation; translation [m]."""
-        rotation, translation = check_rigid_transform(rotation, translation)
-        self._head = (rotation, translation)
-        self._set_head_control(rotation, translation)
+        self._head = check_rigid_transform(rotation, translation)
+        self._orient_roots()
         self.update_frames()
 
     # ---- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1, timers=None) -> None:
         """Advance n steps of dt (each maybe substepped). On blow-up the state is rolled back to
         where this call began and SimulationDiverged is raised. With `timers` (a callable
-        name -> context manager that synchronises), every stage runs as its own kernel and is
-        timed; otherwise many substeps run in one fused launch."""
+        name -> context manager that synchronises), or with hair interaction, every stage runs
+        as its own kernel; otherwise many substeps run in one fused launch."""
         if not (isinstance(n, int) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         self._take_snapshot()
         h = self.dt / self.substeps
         remaining = n * self.substeps
+        staged = timers is not None or self.interaction is not None
         while remaining > 0:
-            count = 1 if timers is not None else min(remaining, MAX_STEPS_PER_LAUNCH)
-            moving = self.root_motion is not None
-            if moving:
-                self._load_head_poses(h, count)
-            if timers is not None:
-                kmoch_step(self.model, self.state, self.control, self.plan, h, timers)
+            count = 1 if staged else min(remaining, MAX_STEPS_PER_LAUNCH)
+            moving = self._load_launch(h, count)
+            self.control.time = self.time
+            if staged:
+                kmoch_step(self.model, self.state, self.control, self.plan, h, timers,
+                           self.interaction.stage if self.interaction is not None else None)
             else:
                 advance(self.model, self.state, self.control, self.plan, h, count, moving)
-            bad = self.state.strand_bad.to_numpy()
+            bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
             self.time += count * h
+            self._head_prev = self._head
             remaining -= count
         self.steps_taken += n
 
-    def _load_head_poses(self, h, count):
-        """Head poses at the end of each of the next `count` substeps, for the fused launch."""
-        poses = np.empty((count, 4, 3))
-        for k in range(count):
-            rotation, translation = self._head_at(self.time + (k + 1) * h)
-            poses[k, :3], poses[k, 3] = rotation, translation
-        self._head = (poses[-1, :3].copy(), poses[-1, 3].copy())
-        if self.control.head_poses is None or self.control.head_poses.shape[0] < count:
-            self.control.head_poses = arrays.vectors(3, (max(count, MAX_STEPS_PER_LAUNCH), 4))
-        buffer = np.zeros(self.control.head_poses.shape + (3,))
-        buffer[:count] = poses
-        self.control.head_poses.from_numpy(buffer.astype(arrays.np_float()))
-        self.control.head.from_numpy(poses[:1].astype(arrays.np_float()))
+    def _load_launch(self, h, count) -> bool:
+        """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
+        times = self.time + h * np.arange(count + 1)
+        if self.root_motion is not None:
+            poses = [self._head_prev] + [self._head_at(t) for t in times[1:]]
+            self._head = poses[-1]
+            load_poses(self.control, np.stack([_pose(*p) for p in poses]))
+        else:
+            load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
+        load_tools(self.control, self.touch, times)
+        return self.root_motion is not None and count > 1
 
     def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
         """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
@@ -225,13 +227,14 @@ class Simulator:
     def _diverged(self, h, bad_step):
         bad = np.flatnonzero(bad_step >= 0)
         first = bad[np.argmin(bad_step[bad])]
-        cap_hits = int(self.state.projection_cap_hits.to_numpy().sum())
+        cap_hits = int(self.state.counters.to_numpy()[:, COUNTERS["projection_cap_hits"]].sum())
         t = self.time + (bad_step[first] + 1) * h
         step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
         for name, copy in self._snapshot.items():
             getattr(self.state, name).copy_from(copy)
-        self.time, self.steps_taken, head = self._snapshot_clock
-        self._set_head_control(*head)
+        self.time, self.steps_taken, self._head = self._snapshot_clock
+        self._head_prev = self._head
+        self._orient_roots()
         self.update_frames()
         cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed)
         raise SimulationDiverged(
@@ -258,27 +261,28 @@ class Simulator:
         projection iterations (max), its final residual (max), how many strand-steps ended above
         projection_tol at the iteration cap (projection_cap_hits) or stalled at the precision's
         rounding floor (projection_stalls), and the twist solve's iterations and residual."""
-        st = self.state
+        counters = self.state.counters.to_numpy()
+        residuals = self.state.residuals.to_numpy()
         report = {
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "substeps": self.substeps,
-            "substep_dt": self.dt / self.substeps, "stable_dt": self.stable_dt,
+            "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
-            "projection_iterations_max": int(st.projection_iterations.to_numpy().max()),
-            "projection_residual_max": float(st.projection_residual.to_numpy().max()),
-            "projection_cap_hits": int(st.projection_cap_hits.to_numpy().sum()),
-            "projection_stalls": int(st.projection_stalls.to_numpy().sum()),
+            "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
+            "projection_residual_max": float(residuals[:, 0].max()),
+            "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
+            "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
             "twist": self.twist,
         }
         if self.twist == "quasistatic":
-            report["twist_iterations_max"] = int(st.twist_iterations.to_numpy().max())
-            report["twist_residual_max"] = float(st.twist_residual.to_numpy().max())
+            report["twist_iterations_max"] = int(counters[:, COUNTERS["twist_iterations"]].max())
+            report["twist_residual_max"] = float(residuals[:, 1].max())
         if reset:
-            for a in (st.projection_iterations, st.projection_cap_hits, st.projection_stalls,
-                      st.twist_iterations):
-                a.fill(0)
-            for a in (st.projection_residual, st.twist_residual):
-                a.fill(0.0)
+            self._reset_counters()
         return report
+
+    def _reset_counters(self):
+        self.state.counters.fill(0)
+        self.state.residuals.fill(0.0)
 
     # ---- state in and out -------------------------------------------------------------
     @property
@@ -347,13 +351,11 @@ class Simulator:
         """Solve the free edges' material angles with the chosen twist mode. Returns
         {"iterations", "residual"}: the quasistatic solve's max over strands (the scaled residual
         max |dE/dtheta| l / max(EI1, GJ)); for "kmoch" and "none", 1 and 0 iterations, residual NaN."""
-        st = self.state
-        st.twist_iterations.fill(0)
-        st.twist_residual.fill(0.0)
-        run_twist_update(self.model, st, self.plan)
+        self._reset_counters()
+        run_twist_update(self.model, self.state, self.plan)
         if self.twist == "quasistatic":
-            return {"iterations": int(st.twist_iterations.to_numpy().max()),
-                    "residual": float(st.twist_residual.to_numpy().max())}
+            return {"iterations": int(self.state.counters.to_numpy()[:, COUNTERS["twist_iterations"]].max()),
+                    "residual": float(self.state.residuals.to_numpy()[:, 1].max())}
         return {"iterations": int(self.twist == "kmoch"), "residual": float("nan")}
 
     # ---- energies and forces ----------------------------------------------------------
@@ -416,6 +418,46 @@ def default_projection_tol(groom: Groom) -> float:
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
     return max(1e-6, 16 * float(np.finfo(np.float32).eps) * reach / shortest)
+
+
+def _default_twist_tol():
+    return 1e-10 if precision() == "float64" else 1e-5
+
+
+def _pose(rotation, translation):
+    """[4, 3]: rows of R, then t."""
+    return np.vstack([rotation, translation])
+
+
+def _grab_bound(model, grab, factor):
+    """Explicit stability of a grab spring k on the lightest free node: h < 2 factor sqrt(m / k)."""
+    masses = model.mass.to_numpy()[model.inv_mass.to_numpy() > 0]
+    return 2.0 * factor * math.sqrt(masses.min() / grab.stiffness)
+
+
+def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
+                     wind, colliders, touch, hair_interaction):
+    if not isinstance(groom, Groom):
+        raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
+    if twist not in TWIST_MODES:
+        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
+    for name, value in (("projection_iterations", projection_iterations),
+                        ("twist_iterations", twist_iterations)):
+        if not (isinstance(value, int) and value >= 1):
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    if not (isinstance(drag, (int, float)) and math.isfinite(drag) and drag >= 0):
+        raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
+    if root_motion is not None and not callable(root_motion):
+        raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")
+    for k, c in enumerate(colliders):
+        if not isinstance(c, COLLIDER_TYPES):
+            raise ValueError(f"colliders[{k}] must be one of Sphere, Ellipsoid, Capsule, Plane, "
+                             f"MeshCollider; got {type(c).__name__}")
+    for k, tool in enumerate(touch):
+        if not isinstance(tool, (Hand, Grab)):
+            raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
+    if hair_interaction is not None and not isinstance(hair_interaction, HairInteraction):
+        raise ValueError(f"hair_interaction must be a HairInteraction or None, got {type(hair_interaction).__name__}")
 
 
 def check_rigid_transform(rotation, translation):

@@ -24,10 +24,9 @@ class RodModel:
     two rest edges; the two end nodes: half their edge); inv_mass [S, N] 1/kg (0 on the clamped
     root edge's two nodes); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
     rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
-    rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_rest vec3 [S, 2] m
-    (the root edge's two nodes in head coordinates); root_tangent, root_reference vec3 [S]
-    (the rest root edge's unit tangent and its Bishop vector u, in head coordinates), and
-    numpy copies of the last two."""
+    rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
+    the root edge's two nodes [m], its unit tangent and its Bishop vector u, all in head
+    coordinates (the rest pose); root_tangent_np, root_reference_np: numpy [S, 3] copies."""
 
     groom: Groom
     materials: tuple
@@ -40,9 +39,7 @@ class RodModel:
     rest_theta: object
     rest_kappa: object
     rest_twist: object
-    root_rest: object
-    root_tangent: object
-    root_reference: object
+    root_frame: object
     root_tangent_np: np.ndarray
     root_reference_np: np.ndarray
 
@@ -53,6 +50,12 @@ class RodModel:
     @property
     def max_nodes(self) -> int:
         return self.groom.max_nodes
+
+
+# columns of RodState.counters: running maxima / counts since the last stats reset, and the
+# first step at which a strand went bad in the last launch (-1: none)
+COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
+            "twist_iterations": 3, "bad_step": 4}
 
 
 @dataclass
@@ -79,13 +82,8 @@ class RodState:
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
     strand_count: object  # [S] int
-    strand_bad: object  # [S] int: 1 where the last step went non-finite or too fast
-    projection_iterations: object  # [S] int
-    projection_residual: object  # [S] float
-    projection_cap_hits: object  # [S] int
-    projection_stalls: object  # [S] int
-    twist_iterations: object  # [S] int
-    twist_residual: object  # [S] float
+    counters: object  # [S, 5] int, see COUNTERS
+    residuals: object  # [S, 2] float: projection and twist residual maxima
 
 
 def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
@@ -131,13 +129,8 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodS
         scratch_edge=tuple(arrays.scalars(edges) for _ in range(3)),
         strand_scalar=arrays.scalars((s_count,)),
         strand_count=arrays.ints((s_count,), 0),
-        strand_bad=arrays.ints((s_count,), 0),
-        projection_iterations=arrays.ints((s_count,), 0),
-        projection_residual=arrays.scalars((s_count,)),
-        projection_cap_hits=arrays.ints((s_count,), 0),
-        projection_stalls=arrays.ints((s_count,), 0),
-        twist_iterations=arrays.ints((s_count,), 0),
-        twist_residual=arrays.scalars((s_count,)),
+        counters=arrays.ints((s_count, len(COUNTERS)), 0),
+        residuals=arrays.scalars((s_count, 2)),
     )
 
 
@@ -204,9 +197,8 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
         stiffness=arrays.vectors(4, (groom.n_strands,), stiffness),
         rest_theta=arrays.scalars(rest_theta.shape, rest_theta),
         rest_kappa=rest_kappa, rest_twist=arrays.scalars(rest_twist.shape, rest_twist),
-        root_rest=arrays.vectors(3, (groom.n_strands, 2), groom.positions[:, :2]),
-        root_tangent=arrays.vectors(3, (groom.n_strands,), root_t),
-        root_reference=arrays.vectors(3, (groom.n_strands,), root_u),
+        root_frame=arrays.vectors(3, (groom.n_strands, 4), np.concatenate(
+            [groom.positions[:, :2], root_t[:, None], root_u[:, None]], axis=1)),
         root_tangent_np=root_t, root_reference_np=root_u,
     )
     return model, state

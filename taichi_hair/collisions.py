@@ -1,0 +1,92 @@
+"""Contact stage: push nodes out of colliders and hands, with friction. Runs inside the fast
+projection (see step.strand_project), alternating with the inextensibility solve."""
+
+import taichi as ti
+
+from .arrays import vec3
+from .colliders import analytic_distance, grid_distance
+from .forces import HAND
+
+
+@ti.func
+def to_head(head: ti.template(), k, p):
+    """R^T (p - t): world point p [m] in head coordinates at head pose k."""
+    q = p - head[k, 3]
+    return q[0] * head[k, 0] + q[1] * head[k, 1] + q[2] * head[k, 2]
+
+
+@ti.func
+def from_head(head: ti.template(), k, p):
+    """R p + t: head-coordinate point p [m] in the world at head pose k."""
+    return vec3(head[k, 0].dot(p), head[k, 1].dot(p), head[k, 2].dot(p)) + head[k, 3]
+
+
+@ti.func
+def resolve_contact(p, p_prev, d, n, margin, friction):
+    """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin
+    and shrink its slip along the surface since p_prev by friction x push depth (Coulomb)."""
+    push = margin - d
+    moved = p + push * n
+    slip = moved - p_prev
+    tangential = slip - slip.dot(n) * n
+    length = tangential.norm()
+    if length > 1e-12:
+        moved -= ti.min(1.0, friction * push / length) * tangential
+    return moved
+
+
+@ti.func
+def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.template(),
+                   x_prev: ti.template(), head: ti.template(), now, prev,
+                   n_analytic, kinds: ti.template(), geometry: ti.template(), params: ti.template(),
+                   use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
+                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template()):
+    """Resolve every free node of strand s against the colliders (analytic table, optional
+    distance grid, optional hands). Head-attached shapes are handled in head coordinates so
+    their friction sees the motion relative to the moving head. Returns the number of pushes."""
+    pushes = 0
+    for i in range(node_count[s]):
+        if inv_mass[s, i] > 0.0:
+            p = x[s, i]
+            for c in range(n_analytic):
+                on_head = params[c][3] > 0.5
+                local = p
+                local_prev = x_prev[s, i]
+                if on_head:
+                    local = to_head(head, now, p)
+                    local_prev = to_head(head, prev, x_prev[s, i])
+                d, n = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], local)
+                if d < params[c][1]:
+                    local = resolve_contact(local, local_prev, d, n, params[c][1], params[c][2])
+                    p = local
+                    if on_head:
+                        p = from_head(head, now, local)
+                    pushes += 1
+            if ti.static(use_mesh):
+                # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
+                on_head = sdf_meta[2][0] > 0.5
+                local = p
+                local_prev = x_prev[s, i]
+                if on_head:
+                    local = to_head(head, now, p)
+                    local_prev = to_head(head, prev, x_prev[s, i])
+                d, n = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], local)
+                if d < sdf_meta[1][1]:
+                    local = resolve_contact(local, local_prev, d, n, sdf_meta[1][1], sdf_meta[1][2])
+                    p = local
+                    if on_head:
+                        p = from_head(head, now, local)
+                    pushes += 1
+            if ti.static(use_touch):
+                for k in range(tools.shape[0]):
+                    if ti.cast(tools[k][0], ti.i32) == HAND:
+                        # in the hand's frame: its own motion over the step does not count as slip
+                        centre = tool_points[now, k]
+                        local = p - centre
+                        local_prev = x_prev[s, i] - tool_points[prev, k]
+                        d, n = analytic_distance(0, vec3(0.0), vec3(0.0), tools[k][1], local)
+                        if d < tools[k][2]:
+                            p = centre + resolve_contact(local, local_prev, d, n, tools[k][2], tools[k][3])
+                            pushes += 1
+            x[s, i] = p
+    return pushes
