@@ -2,8 +2,8 @@
 
 Setup (once): the scalp chart, the Delaunay triangulation of the guide roots and the location of
 every dense root in it come from `taichi_hair.scalp`; each dense root also gets its nearest
-guide for clumping, seeded per-strand variation and, when rest shapes are given, the detail
-that makes the dense strand reproduce its own rest shape (see `Interpolator`).
+guide for clumping and seeded per-strand variation, or, when rest shapes are given, its rest
+edges and the guides' rest frames (see `Interpolator`).
 
 Per frame (Taichi, ndarray arguments so each kernel compiles once per process; the head pose
 travels as a [4] vec3 ndarray, rows of R then t, never as a scalar matrix argument, whose
@@ -14,9 +14,10 @@ type could be fixed at float32 before `taichi_hair.init` chose the precision):
      root-relative shapes, clump interpolation (one guide plus an offset carried in its Bishop
      frame, so it follows the guide's bending and twist), the per-strand blend of both, and
      frizz growing toward the tip.
-  3. `_add_detail` (rest shapes only): one thread per node: the node's rest detail, stored in
-     the clump guide's rest Bishop frame, added back in that frame as it is now.
-  4. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
+     With rest shapes (an imported style), `_dense_from_edges` replaces it: one thread per
+     dense strand: each rest edge turned by the rotations of the same edge of its guides (the
+     clump guide and the triangle's three, blended) and laid end to end from the root.
+  3. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
      out along the surface normal (only when the head is a sphere or ellipsoid).
 
 Positions are metres; arrays are [strand, node, xyz]; node 0 is the root.
@@ -194,36 +195,38 @@ def _push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
 
 
 @ti.func
-def _node_frame(d, i, n, t: ti.template(), u: ti.template(), idx: ti.template(), par: ti.template()):
-    """(u, v, t) of the clump guide's edge that carries node i of dense strand d (as in
-    `_dense_nodes`)."""
-    j, g = _edge(par[d, 1] + i * par[d, 2], n), idx[d][3]
-    return u[g, j], t[g, j].cross(u[g, j]), t[g, j]
+def _turned(e, t0, u0, t1, u1):
+    """e turned by the rotation taking the frame (u0, t0 x u0, t0) to (u1, t1 x u1, t1)."""
+    v0, v1 = t0.cross(u0), t1.cross(u1)
+    return e.dot(u0) * u1 + e.dot(v0) * v1 + e.dot(t0) * t1
 
 
 @ti.kernel
-def _detail_in_frames(t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), par: Scalars2,
-                      rest: Vec3s2, interpolated: Vec3s2, detail: Vec3s2):
-    """detail[d, i] = rest - interpolated [m] of node i in its carrying frame (u, v, t), computed
-    once with the guides at rest; 0 at the root, which the interpolation already places.
-    One thread per (strand, node)."""
-    n = rest.shape[1]
-    for d, i in ti.ndrange(rest.shape[0], n):
-        a, b, c = _node_frame(d, i, n, t, u, idx, par)
-        r = rest[d, i] - interpolated[d, i]
-        detail[d, i] = ti.select(i > 0, vec3(r.dot(a), r.dot(b), r.dot(c)), vec3(0.0))
-
-
-@ti.kernel
-def _add_detail(t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), par: Scalars2,
-                detail: Vec3s2, out: Vec3s2):
-    """out[d, i] += the rest detail carried by the node's frame as it is now [m].
-    One thread per (strand, node)."""
-    n = out.shape[1]
-    for d, i in ti.ndrange(out.shape[0], n):
-        a, b, c = _node_frame(d, i, n, t, u, idx, par)
-        k = detail[d, i]
-        out[d, i] += k[0] * a + k[1] * b + k[2] * c
+def _dense_from_edges(x: Vec3s2, t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2,
+                      idx: ti.types.ndarray(dtype=ivec5, ndim=1), w: Vec3s1, rel: Vec3s2,
+                      par: Scalars2, head: Vec3s1, edges: Vec3s2, out: Vec3s2):
+    """Dense nodes out[d, i] [m] of strands with rest shapes: the root as in `_dense_nodes`, then
+    each rest edge edges[d, j] [m] turned by the rotation of edge j of each of its guides
+    (Bishop frame at rest t_rest, u_rest -> now t, u), blended with weights (1 - blend) w[d]
+    (triangle) and blend (clump guide), and rescaled to its rest length: inextensible, exact
+    at rest and rigid under a rigid head motion. One thread per dense strand, serial along it."""
+    for d in range(out.shape[0]):
+        blend, wd = par[d, 0], w[d]
+        weight = ti.Vector([(1.0 - blend) * wd[0], (1.0 - blend) * wd[1], (1.0 - blend) * wd[2], blend])
+        root = vec3(0.0)
+        for k in ti.static(range(4)):
+            root += weight[k] * (x[idx[d][k], 0] + _rotate(head, rel[d, k]))
+        out[d, 0] = root
+        g = idx[d][3]
+        for j in range(out.shape[1] - 1):
+            e = edges[d, j]
+            turned = vec3(0.0)
+            for k in ti.static(range(4)):
+                m = idx[d][k]
+                turned += weight[k] * _turned(e, t_rest[m, j], u_rest[m, j], t[m, j], u[m, j])
+            if turned.norm() < 1e-6 * e.norm():  # guides turned opposite ways: follow the clump
+                turned = _turned(e, t_rest[g, j], u_rest[g, j], t[g, j], u[g, j])
+            out[d, j + 1] = out[d, j] + turned * (e.norm() / turned.norm())
 
 
 # ---------------------------------------------------------------- the interpolator
@@ -252,11 +255,14 @@ class Interpolator:
         or a callable mapping points [M, 3] to pushed points [M, 3] (runs on the host).
     rest_guides [G, n_nodes, 3], rest_shapes [D, n_nodes, 3] (m), given together: the guides'
         rest positions and the shapes the dense strands must have when the guides are there
-        (an imported hairstyle). Each dense node's difference from its interpolated rest
-        position is stored in the rest Bishop frame of its clump guide's edge and added back
-        in that frame as it moves, so at rest the output is rest_shapes (to round-off) and it
-        moves rigidly with the head. Node 0 of rest_shapes must be dense_roots (1e-6 m).
-        A head collider still acts on top: rest nodes within head_margin of it are moved.
+        (an imported hairstyle). The root is placed as in the modes above; every rest edge j
+        then turns as edge j of the strand's guides turns (the rotation of their Bishop
+        frames from rest, blended with the mode's weights) and keeps its rest length, and the
+        edges are laid end to end: at rest the output is rest_shapes (to round-off), a rigid
+        head motion moves it rigidly, and dense strands are inextensible however far they lie
+        from their guides. Node 0 of rest_shapes must be dense_roots (within 1e-6 m); frizz,
+        length_variation, curl_phase_variation and clump_radius do not apply. A head collider
+        still acts on top: rest nodes within head_margin of it are moved.
     """
 
     def __init__(self, guide_roots, guide_normals, dense_roots, n_nodes, *, mode="blend",
@@ -267,6 +273,10 @@ class Interpolator:
         roots, normals, dense = _check_setup(guide_roots, guide_normals, dense_roots, n_nodes)
         self.n_guides, self.n_dense, self.n_nodes = len(roots), len(dense), int(n_nodes)
         rest = _check_rest(rest_guides, rest_shapes, roots, dense, self.n_nodes)
+        varied = frizz or length_variation or curl_phase_variation or clump_radius is not None
+        if rest is not None and varied:
+            raise ValueError("frizz, length_variation, curl_phase_variation and clump_radius must keep "
+                             "their defaults with rest_shapes (the rest shapes fix every strand)")
         self._head, self._ellipsoid = _check_head(head, head_margin)
         self._dtype = np.float32 if precision() == "float32" else np.float64
         centre = None if self._ellipsoid is None else self._ellipsoid[0]
@@ -289,9 +299,9 @@ class Interpolator:
         g, d, n = self.n_guides, self.n_dense, self.n_nodes
         self._t, self._u = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
         self._out = ti.ndarray(vec3, (d, n))
-        self._detail = None
+        self._edges = None
         if rest is not None:
-            self._detail = self._fit_rest_detail(*rest)
+            self._fit_rest_edges(*rest)
 
     def _upload_strands(self, roots, normals, dense, par, keys):
         """Upload the per-strand geometry and parameters (see `_dense_nodes`)."""
@@ -311,15 +321,14 @@ class Interpolator:
         self._par = ti.ndarray(float, (d, 5))  # `float` resolves to the precision now, not at import
         self._par.from_numpy(np.ascontiguousarray(par, dtype=self._dtype))
 
-    def _fit_rest_detail(self, rest_guides, rest_shapes):
-        """Detail [D, n_nodes] vec3: each rest node's offset from its interpolated rest position
-        in its carrying frame (see `_detail_in_frames`)."""
-        interpolated = self._out
-        self._run(rest_guides, interpolated, None, None, collide=False)
-        shapes = _upload(rest_shapes, vec3, (self.n_dense, self.n_nodes), self._dtype)
-        detail = ti.ndarray(vec3, (self.n_dense, self.n_nodes))
-        _detail_in_frames(self._t, self._u, self._idx, self._par, shapes, interpolated, detail)
-        return detail
+    def _fit_rest_edges(self, rest_guides, rest_shapes):
+        """Store the dense rest edges [D, n_nodes - 1] and the guides' rest Bishop frames."""
+        self._run(rest_guides, self._out, None, None, collide=False)
+        g, n = self.n_guides, self.n_nodes
+        self._t_rest, self._u_rest_frames = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
+        self._t_rest.copy_from(self._t)
+        self._u_rest_frames.copy_from(self._u)
+        self._edges = _upload(np.diff(rest_shapes, axis=1), vec3, (self.n_dense, n - 1), self._dtype)
 
     def interpolate(self, guide_positions, head_rotation=None, head_translation=None, out=None):
         """Dense node positions [D, n_nodes, 3] (m) as numpy.
@@ -361,10 +370,12 @@ class Interpolator:
             raise ValueError(f"head_translation must be 3 finite numbers (m), got {head_translation!r}")
         self._pose.from_numpy(np.vstack([rot, trans]).astype(self._dtype))
         _guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
-        _dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
-                     self._pose, out)
-        if self._detail is not None:
-            _add_detail(self._t, self._u, self._idx, self._par, self._detail, out)
+        if self._edges is None:
+            _dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
+                         self._pose, out)
+        else:
+            _dense_from_edges(x, self._t, self._u, self._t_rest, self._u_rest_frames, self._idx,
+                              self._w, self._rel, self._par, self._pose, self._edges, out)
         if collide and self._ellipsoid is not None:
             _push_out_of_ellipsoid(out, self._pose, self._shape)
 

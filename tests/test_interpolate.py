@@ -160,7 +160,8 @@ def wavy_rest_shapes(dense, n_nodes, seed=8):
     s = np.linspace(0.0, 0.2, n_nodes)[None, :, None]
     side = rng.normal(size=(len(dense), 1, 3)) * np.array([1.0, 1.0, 0.0])
     phase = rng.uniform(0, 6, (len(dense), 1, 1))
-    return dense[:, None] + s * np.array([0.0, 0.2, 1.0]) + 0.01 * (np.sin(30 * s + phase) - np.sin(phase)) * side
+    wave = 0.01 * (np.sin(30 * s + phase) - np.sin(phase)) * side
+    return dense[:, None] + s * np.array([0.0, 0.2, 1.0]) + wave
 
 
 @pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
@@ -169,8 +170,8 @@ def test_rest_shapes_are_reproduced_at_rest_and_moved_rigidly(kwargs):
     guides = helices(roots, normals, n_nodes=16)
     dense = random_cap(60, max_polar_deg=45.0)
     shapes = wavy_rest_shapes(dense, 16)
-    interp = build(kwargs, roots, normals, dense, 16, frizz=0.002, clump_radius=0.003,
-                   length_variation=0.2, rest_guides=guides, rest_shapes=shapes)
+    interp = build(kwargs, roots, normals, dense, 16, head=((0, 0, 0), 0.05), rest_guides=guides,
+                   rest_shapes=shapes)
     rest = interp.interpolate(guides)
     np.testing.assert_allclose(rest, shapes, rtol=0, atol=1e-12)
     plain = build(kwargs, roots, normals, dense, 16).interpolate(guides)
@@ -180,25 +181,43 @@ def test_rest_shapes_are_reproduced_at_rest_and_moved_rigidly(kwargs):
     np.testing.assert_allclose(moved, shapes @ rot.T + trans, rtol=0, atol=1e-12)
 
 
-def test_rest_shapes_the_interpolation_already_makes_change_nothing_as_guides_move():
-    """Zero detail is carried as zero: with rest shapes equal to the plain interpolation of the
-    rest guides, bent guides give the plain interpolation of the bent guides."""
+def test_rest_shapes_follow_guides_that_all_bend_alike_and_keep_their_edge_lengths():
+    """Guides of one root-relative shape, bent alike: every dense strand whose rest shape is that
+    shape from its own root takes the bent shape from its root, whatever the mode's weights
+    (each guide turns each edge by the same rotation). Under unlike bending, dense edges keep
+    their rest lengths exactly."""
     roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
-    guides = helices(roots, normals, n_nodes=16)
     dense = random_cap(60, max_polar_deg=45.0)
-    plain = Interpolator(roots, normals, dense, 16)
-    shapes = plain.interpolate(guides).copy()
-    bent = guides + 0.3 * (guides - guides[:, :1]) ** 2 * np.array([1.0, -2.0, 0.5])
-    with_rest = Interpolator(roots, normals, dense, 16, rest_guides=guides, rest_shapes=shapes)
-    np.testing.assert_allclose(with_rest.interpolate(bent), plain.interpolate(bent), rtol=0, atol=1e-12)
+    s = np.linspace(0, 1, 16)[:, None]
+    shape = np.concatenate([0.05 * np.sin(3 * s), 0.02 * s ** 2, 0.15 * s], axis=1)
+    bent_shape = np.concatenate([0.12 * s ** 2, -0.03 * np.sin(2 * s), 0.14 * s - 0.02 * s ** 3], axis=1)
+    bent_shape[1] = shape[1]  # the root edge rides on the head
+    for kwargs in MODES:
+        interp = build(kwargs, roots, normals, dense, 16, rest_guides=roots[:, None] + shape,
+                       rest_shapes=dense[:, None] + shape)
+        out = interp.interpolate(roots[:, None] + bent_shape)
+        edges = np.linalg.norm(np.diff(bent_shape, axis=0), axis=1)
+        rest_edges = np.linalg.norm(np.diff(shape, axis=0), axis=1)
+        expect = dense[:, None] + np.concatenate([[[0, 0, 0]], np.cumsum(np.diff(bent_shape, axis=0)
+                                                                       * (rest_edges / edges)[:, None], 0)])
+        np.testing.assert_allclose(out, expect, rtol=0, atol=1e-12)
+    rng = np.random.default_rng(2)
+    guides = helices(roots, normals, n_nodes=16, phases=rng.uniform(-1, 1, 25))
+    shapes = wavy_rest_shapes(dense, 16)
+    interp = Interpolator(roots, normals, dense, 16, rest_guides=guides, rest_shapes=shapes)
+    moved = guides + 3.0 * (guides - guides[:, :1]) ** 2 * rng.normal(size=(25, 1, 3))
+    moved[:, 1] = guides[:, 1]
+    out = interp.interpolate(moved)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(out, axis=1), axis=2),
+                               np.linalg.norm(np.diff(shapes, axis=1), axis=2), rtol=1e-12)
+    assert np.abs(out - shapes).max() > 0.01  # not vacuous: the strands moved
 
 
-def test_rest_detail_turns_with_the_guide_it_rides_on():
-    """Straight guides along +z turned 90 degrees at the root to run along +x. A dense strand
-    1 mm x 1 mm from guide 0's root whose rest shape runs 4 mm beside the guide along +x: the
-    clump keeps the root offset (0.001, 0.001, 0), and the 4 mm detail, which lay along the
-    guide's rest Bishop vector -v = +x (u = z x x = +y, v = t x u = -x), turns with the frame
-    (transported from z to x about y: u stays +y, v = x x y = +z) to -v = -z."""
+def test_rest_edges_turn_with_the_guide_they_ride_on():
+    """Straight guides along +z turned 90 degrees at the root to run along +x (a rotation about
+    y). A dense strand rooted 1 mm x 1 mm from guide 0 whose first rest edge steps 4 mm along
+    +x beside its 2 cm rise: the root stays, the first edge (0.004, 0, 0.02) turns to
+    (0.02, 0, -0.004) and the others (0, 0, 0.02) to (0.02, 0, 0)."""
     roots = np.array([[0.0, 0.0, 0.1], [0.05, 0.0, 0.1], [0.0, 0.05, 0.1]])
     normals = np.tile([0.0, 0.0, 1.0], (3, 1))
     s = np.linspace(0, 0.2, 11)[None, :, None]
@@ -221,6 +240,8 @@ def test_rest_detail_turns_with_the_guide_it_rides_on():
     (dict(rest_guides="guides", rest_shapes="moved"), r"rest_shapes\[:, 0\] must be dense_roots"),
     (dict(rest_guides="moved", rest_shapes="shapes"), r"rest_guides\[:, 0\] must be guide_roots"),
     (dict(rest_guides="guides", rest_shapes="nan"), "rest_shapes must be finite"),
+    (dict(rest_guides="guides", rest_shapes="shapes", frizz=0.001), "frizz, length_variation.*must keep"),
+    (dict(rest_guides="guides", rest_shapes="shapes", clump_radius=0.01), "clump_radius must keep"),
 ])
 def test_bad_rest_shapes_raise_value_errors_naming_them(kwargs, phrase):
     roots, normals = sample_scalp_roots(10)
@@ -232,7 +253,8 @@ def test_bad_rest_shapes_raise_value_errors_naming_them(kwargs, phrase):
     values = {"guides": guides, "shapes": shapes, "short": shapes[:, :7], "nan": nan}
     values["moved"] = (guides if kwargs.get("rest_guides") == "moved" else shapes) + 1e-5
     with pytest.raises(ValueError, match=phrase):
-        Interpolator(roots, normals, dense, 8, **{k: values[v] for k, v in kwargs.items()})
+        Interpolator(roots, normals, dense, 8, **{k: values.get(v, v) if isinstance(v, str) else v
+                                                  for k, v in kwargs.items()})
 
 
 IMPORT_FIRST_SCRIPT = """
