@@ -4,13 +4,20 @@ Public API (see README.md):
     th.init(arch="cpu", precision="float32")
     th.Groom.from_polylines / straight / wavy / curly
     th.Material(youngs_modulus=..., shear_modulus=..., radius=..., density=..., ellipticity=1.0)
-    th.Simulator(groom, material, twist="kmoch")
+    th.Simulator(groom, material, twist="kmoch"), th.Simulator.from_scene(scene, dt=...)
+    th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
 """
 
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .forces import Grab, Hand, Wind
 from .groom import Groom
+from .interaction import HairInteraction
 from .materials import Material
 from .runtime import init
+from .scene import Head, Scene
 from .simulator import Simulator
 from .stability import SimulationDiverged
 
-__all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged"]
+__all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
+           "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
+           "HairInteraction"]

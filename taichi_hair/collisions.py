@@ -40,10 +40,12 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                    x_prev: ti.template(), head: ti.template(), now, prev,
                    n_analytic, kinds: ti.template(), geometry: ti.template(), params: ti.template(),
                    use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
-                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template()):
+                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template(),
+                   tool_now, tool_prev):
     """Resolve every free node of strand s against the colliders (analytic table, optional
     distance grid, optional hands). Head-attached shapes are handled in head coordinates so
-    their friction sees the motion relative to the moving head. Returns the number of pushes."""
+    their friction sees the motion relative to the moving head (head poses now / prev); hands
+    sit at tool_points[tool_now] (tool_prev before the step). Returns the number of pushes."""
     pushes = 0
     for i in range(node_count[s]):
         if inv_mass[s, i] > 0.0:
@@ -81,9 +83,9 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                 for k in range(tools.shape[0]):
                     if ti.cast(tools[k][0], ti.i32) == HAND:
                         # in the hand's frame: its own motion over the step does not count as slip
-                        centre = tool_points[now, k]
+                        centre = tool_points[tool_now, k]
                         local = p - centre
-                        local_prev = x_prev[s, i] - tool_points[prev, k]
+                        local_prev = x_prev[s, i] - tool_points[tool_prev, k]
                         d, n = analytic_distance(0, vec3(0.0), vec3(0.0), tools[k][1], local)
                         if d < tools[k][2]:
                             p = centre + resolve_contact(local, local_prev, d, n, tools[k][2], tools[k][3])

@@ -22,11 +22,11 @@ from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
 from .state import COUNTERS
+from .twist import TWIST_MODES
 from .step import StepPlan, advance, kmoch_step, place_roots, run_twist_update, strand_mechanical_energy
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 
-TWIST_MODES = ("kmoch", "quasistatic", "none")
 
 
 def _vector3(name, value):

@@ -129,7 +129,8 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
                    x_prev: ti.template(), head: ti.template(), now, prev, n_analytic,
                    kinds: ti.template(), geometry: ti.template(), params: ti.template(),
                    use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
-                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template()):
+                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template(),
+                   tool_now, tool_prev):
     """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
     edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
     tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of the
@@ -142,7 +143,8 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
     while True:
         if ti.static(contacts):
             strand_collide(s, node_count, inv_mass, x, x_prev, head, now, prev, n_analytic, kinds,
-                           geometry, params, use_mesh, sdf, sdf_meta, use_touch, tools, tool_points)
+                           geometry, params, use_mesh, sdf, sdf_meta, use_touch, tools, tool_points,
+                           tool_now, tool_prev)
         previous = res
         res = 0.0
         for j in range(1, n - 1):
@@ -227,7 +229,7 @@ def advance_strands(
         root_u: Vec3s1, scratch_a: Scalars2, scratch_b: Scalars2, scratch_c: Scalars2,
         counters: Ints2, residuals: Scalars2):
     """n_steps steps of h [s] from time t0 for every strand (head poses as in the module doc;
-    tool_points likewise per step). counters[s, BAD] = the first step where strand s went
+    tool_points[k] are the tools at the start of step k, always per step). counters[s, BAD] = the first step where strand s went
     non-finite or too fast (that strand stops there), -1 if none. One thread per strand."""
     for s in range(x.shape[0]):
         counters[s, BAD] = -1
@@ -242,7 +244,7 @@ def advance_strands(
             strand_elastic_forces(s, x, node_count, kb, m1, m2, rest_kappa, voronoi, stiffness, force)
             if ti.static(external or touch):
                 strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
-                                       voronoi, x, v, loads, gusts, modes, tools, tool_points, prev, force)
+                                       voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)
             if ti.static(user):
                 strand_add_forces(s, node_count, user_force, force)
             strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
@@ -250,7 +252,7 @@ def advance_strands(
             it, res = strand_project(s, projection_tol, projection_iterations, node_count, inv_mass,
                                      rest_length, x, dx, scratch_a, scratch_b, scratch_c, contacts,
                                      x_prev, head, now, prev, n_analytic, kinds, geometry, params,
-                                     use_mesh, sdf, sdf_meta, touch, tools, tool_points)
+                                     use_mesh, sdf, sdf_meta, touch, tools, tool_points, k + 1, k)
             record_projection(s, counters, residuals, it, res, projection_tol, projection_iterations)
             bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
             strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
@@ -260,6 +262,16 @@ def advance_strands(
             if bad:
                 counters[s, BAD] = k
                 break
+
+
+def compiled_variants() -> list[dict]:
+    """The stage flags of every compiled instance of the fused kernel in this process: a stage
+    whose flag is False in every instance was never compiled (nor run). Reads Taichi's
+    template-instance table."""
+    mapper = advance_strands._primal.mapper
+    names = [a.name for a in mapper.arguments]
+    flags = ("external", "wind_field", "twist_mode", "user", "moving_head", "contacts", "use_mesh", "touch")
+    return [{f: key[names.index(f)] for f in flags} for key in mapper.mapping]
 
 
 def _common_args(model, state, control, plan: StepPlan):
@@ -321,7 +333,7 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
     for s in range(x.shape[0]):
         it, res = strand_project(s, tol, max_iterations, node_count, inv_mass, rest_length, x, dx,
                                  diag, upper, rhs, contacts, x_prev, head, 1, 0, n_analytic, kinds,
-                                 geometry, params, use_mesh, sdf, sdf_meta, touch, tools, tool_points)
+                                 geometry, params, use_mesh, sdf, sdf_meta, touch, tools, tool_points, 1, 0)
         record_projection(s, counters, residuals, it, res, tol, max_iterations)
 
 

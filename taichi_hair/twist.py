@@ -19,6 +19,7 @@ from .frames import material_directors
 from .linalg import thomas_solve
 from .rod import bend_terms, twist_terms
 
+TWIST_MODES = ("kmoch", "quasistatic", "none")
 PI = 3.141592653589793
 MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
 

@@ -1,0 +1,116 @@
+"""A scene is data: head (colliders and a mesh to draw), groom, material, head motion, wind,
+touch tools and hair-hair interaction, handed to `Simulator.from_scene`."""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, _scalar
+from .forces import Grab, Hand, Wind
+from .groom import Groom
+from .interaction import HairInteraction
+from .materials import Material, per_strand_materials
+from .twist import TWIST_MODES
+
+COLLIDERS = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Head:
+    """A rigid head: colliders (in head coordinates when attached="head", else world) and
+    optionally its triangle mesh (vertices [V, 3] m, faces [F, 3]) for rendering, and the
+    `HeadModel` it came from (scalp marks, for growing roots)."""
+
+    colliders: tuple = ()
+    mesh: tuple | None = None
+    model: object = None
+
+    def __post_init__(self):
+        for k, c in enumerate(self.colliders):
+            if not isinstance(c, COLLIDERS):
+                raise ValueError(f"head.colliders[{k}] must be a Sphere, Ellipsoid, Capsule, Plane or "
+                                 f"MeshCollider, got {type(c).__name__}")
+        if self.mesh is not None:
+            vertices, faces = (np.asarray(a) for a in self.mesh)
+            if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+                raise ValueError("head.mesh must be (vertices [V, 3], faces [F, 3])")
+            if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+                raise ValueError("head.mesh faces index vertices out of range")
+
+    @classmethod
+    def sphere(cls, radius: float = 0.1, centre=(0.0, 0.0, 0.0), margin: float = 0.002,
+               friction: float = 0.3) -> "Head":
+        return cls(colliders=(Sphere(centre=centre, radius=radius, margin=margin, friction=friction),))
+
+    @classmethod
+    def ellipsoid(cls, radii=(0.08, 0.1, 0.115), centre=(0.0, 0.0, 0.0), margin: float = 0.002,
+                  friction: float = 0.3) -> "Head":
+        return cls(colliders=(Ellipsoid(centre=centre, radii=radii, margin=margin, friction=friction),))
+
+    @classmethod
+    def default(cls, margin: float = 0.002, friction: float = 0.3, spacing: float = 0.004) -> "Head":
+        """The project's own head mesh (taichi_hair.headmesh) as a distance-grid collider riding
+        on the head, with its neck and shoulders as capsules that stay with the body (world)."""
+        from .headmesh import default_head
+        from .sdf import SignedDistanceGrid
+        model = default_head()
+        grid = SignedDistanceGrid.from_mesh(model.vertices, model.faces, spacing=spacing)
+        colliders = [MeshCollider(grid=grid, margin=margin, friction=friction, attached="head")]
+        colliders += [Capsule(p0=tuple(p0), p1=tuple(p1), radius=float(r), margin=margin,
+                              friction=friction, attached="world") for p0, p1, r in model.capsules]
+        return cls(colliders=tuple(colliders), mesh=(model.vertices, model.faces), model=model)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """Everything a simulation needs, as data.
+
+    groom: the rest shapes; material: one Material or one per strand; head: a Head or None;
+    motion: callable t -> (R, t) moving the head (taichi_hair.motion has nod, shake, turntable,
+    jerk and keyframes) or None; wind: a Wind, a 3-vector [m/s] or None; touch: Hand and Grab
+    tools; hair_interaction: a HairInteraction or None; gravity [m/s^2]; drag [N s/m per metre
+    of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode."""
+
+    groom: Groom
+    material: object = field(default_factory=Material)
+    head: Head | None = None
+    motion: object = None
+    wind: object = None
+    touch: tuple = ()
+    hair_interaction: HairInteraction | None = None
+    gravity: tuple = (0.0, 0.0, -9.81)
+    drag: float = 5e-4
+    twist: str = "kmoch"
+
+    def __post_init__(self):
+        if not isinstance(self.groom, Groom):
+            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(self.groom).__name__}")
+        per_strand_materials(self.material, self.groom.n_strands)
+        if self.head is not None and not isinstance(self.head, Head):
+            raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
+        if self.motion is not None and not callable(self.motion):
+            raise ValueError("motion must be a callable t -> (rotation 3x3, translation [3]) or None")
+        if self.wind is not None and not isinstance(self.wind, Wind):
+            w = np.asarray(self.wind, dtype=np.float64)
+            if w.shape != (3,) or not np.all(np.isfinite(w)):
+                raise ValueError(f"wind must be a Wind, a finite 3-vector in m/s, or None; got {self.wind!r}")
+        for k, tool in enumerate(self.touch):
+            if not isinstance(tool, (Hand, Grab)):
+                raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
+        if self.hair_interaction is not None and not isinstance(self.hair_interaction, HairInteraction):
+            raise ValueError("hair_interaction must be a HairInteraction or None")
+        g = np.asarray(self.gravity, dtype=np.float64)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {self.gravity!r}")
+        _scalar("drag", self.drag, "N s/m per metre")
+        if self.twist not in TWIST_MODES:
+            raise ValueError(f"twist must be one of {TWIST_MODES}, got {self.twist!r}")
+
+    def simulator_options(self) -> dict:
+        """Keyword arguments of `Simulator` that this scene sets."""
+        return {"gravity": tuple(self.gravity), "drag": self.drag,
+                "wind": (0.0, 0.0, 0.0) if self.wind is None else self.wind,
+                "root_motion": self.motion, "touch": tuple(self.touch),
+                "colliders": () if self.head is None else self.head.colliders,
+                "hair_interaction": self.hair_interaction, "twist": self.twist}
