@@ -76,7 +76,7 @@ class GuideSelection:
         return self.dense[:, 0]
 
 
-def pick_guides(strands, n_guides, *, n_nodes=None, seed=0, iterations=50) -> GuideSelection:
+def pick_guides(strands, n_guides, *, n_nodes=None, seed=0, iterations=20) -> GuideSelection:
     """Pick n_guides guide strands from a dense style.
 
     strands: list of [N_i, 3] arrays (m), root first, N_i >= 3, no zero-length segment (e.g.
@@ -221,7 +221,8 @@ def _kmeans(points, k, rng, iterations):
         if labels is not None and np.array_equal(new, labels):
             break
         labels = new
-        centres = np.stack([points[labels == c].mean(0) for c in range(k)])
+        sizes = np.bincount(labels, minlength=k)[:, None]
+        centres = np.stack([np.bincount(labels, points[:, i], minlength=k) for i in range(3)], 1) / sizes
     return labels, centres
 
 

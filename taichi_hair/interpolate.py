@@ -323,11 +323,10 @@ class Interpolator:
 
     def _fit_rest_edges(self, rest_guides, rest_shapes):
         """Store the dense rest edges [D, n_nodes - 1] and the guides' rest Bishop frames."""
-        self._run(rest_guides, self._out, None, None, collide=False)
         g, n = self.n_guides, self.n_nodes
         self._t_rest, self._u_rest_frames = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
-        self._t_rest.copy_from(self._t)
-        self._u_rest_frames.copy_from(self._u)
+        _guide_frames(self._guides_in(rest_guides), self._normal, self._u_rest, self._pose,
+                      self._t_rest, self._u_rest_frames)  # the pose is still the identity
         self._edges = _upload(np.diff(rest_shapes, axis=1), vec3, (self.n_dense, n - 1), self._dtype)
 
     def interpolate(self, guide_positions, head_rotation=None, head_translation=None, out=None):
@@ -362,7 +361,7 @@ class Interpolator:
             self._out.from_numpy(pts)
         return self._out
 
-    def _run(self, guide_positions, out, head_rotation, head_translation, collide=True):
+    def _run(self, guide_positions, out, head_rotation, head_translation):
         x = self._guides_in(guide_positions)
         rot = _check_rotation(head_rotation)
         trans = np.zeros(3) if head_translation is None else np.asarray(head_translation, np.float64)
@@ -376,7 +375,7 @@ class Interpolator:
         else:
             _dense_from_edges(x, self._t, self._u, self._t_rest, self._u_rest_frames, self._idx,
                               self._w, self._rel, self._par, self._pose, self._edges, out)
-        if collide and self._ellipsoid is not None:
+        if self._ellipsoid is not None:
             _push_out_of_ellipsoid(out, self._pose, self._shape)
 
     def _collide_on_host(self, pts):

@@ -214,15 +214,28 @@ def _upload(array, dtype, np_dtype):
     return nd
 
 
-def nearest(points, targets, chunk=4096):
-    """Index [M] of the nearest target [T, 3] to each point [M, 3] (chunks of `chunk` points)."""
-    points, targets = np.asarray(points, dtype=np.float64), np.asarray(targets, dtype=np.float64)
-    out = np.empty(len(points), dtype=np.int64)
-    t2 = (targets ** 2).sum(1)
-    for s in range(0, len(points), chunk):
-        p = points[s:s + chunk]
-        out[s:s + chunk] = np.argmin(t2[None, :] - 2.0 * p @ targets.T, axis=1)
-    return out
+@ti.kernel
+def _nearest(points: ti.types.ndarray(dtype=vec3, ndim=1), targets: ti.types.ndarray(dtype=vec3, ndim=1),
+             out: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+    """out[p] = index of the target nearest to point p (the first of equals). One thread per
+    point, all targets scanned."""
+    for p in points:
+        best, best_k = (points[p] - targets[0]).norm_sqr(), 0
+        for k in range(1, targets.shape[0]):
+            d = (points[p] - targets[k]).norm_sqr()
+            if d < best:
+                best, best_k = d, k
+        out[p] = best_k
+
+
+def nearest(points, targets):
+    """Index [M] (int64) of the nearest target [T, 3] (m) to each point [M, 3] (m), the first
+    of equally near ones; distances in this process's precision."""
+    ensure_init()
+    dtype = np.float32 if precision() == "float32" else np.float64
+    out = ti.ndarray(ti.i32, (len(points),))
+    _nearest(_upload(points, vec3, dtype), _upload(targets, vec3, dtype), out)
+    return out.to_numpy().astype(np.int64)
 
 
 def sample_scalp_roots(n, *, radius=0.1, centre=(0.0, 0.0, 0.0), max_polar_deg=70.0):

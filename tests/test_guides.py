@@ -79,7 +79,7 @@ def test_guides_are_member_strands_nearest_their_clusters_mean_root(selection):
         members = np.flatnonzero(sel.cluster == c)
         mean = roots[members].mean(0)
         assert sel.guide_index[c] == members[np.argmin(np.linalg.norm(roots[members] - mean, axis=1))]
-    # each root lies in the cluster of its nearest mean (Lloyd's fixed point)
+    # each root lies in the cluster of its nearest mean: Lloyd converged within the cap here
     means = np.stack([roots[sel.cluster == c].mean(0) for c in range(200)])
     d = np.linalg.norm(roots[:, None] - means[None], axis=2)
     assert (d[np.arange(2000), sel.cluster] <= d.min(1) + 1e-12).all()
