@@ -11,6 +11,13 @@ Public API (see README.md):
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .forces import Grab, Hand, Wind
 from .groom import Groom
+from .guides import GuideSelection, animate_style, pick_guides
+from .hairfile import HairFile, HairFileError, read_hair, read_obj_polylines, write_hair, write_obj_polylines
+from .headmesh import HeadModel, default_head, read_obj_mesh, write_obj_mesh
+from .interpolate import Interpolator
+from .motion import Jerk, Keyframes, Nod, Shake, Still, Turntable, compose
+from .roots import sample_scalp, scalp_groom
+from .sdf import SignedDistanceGrid
 from .interaction import HairInteraction
 from .materials import Material
 from .runtime import init
@@ -20,4 +27,8 @@ from .stability import SimulationDiverged
 
 __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
-           "HairInteraction"]
+           "HairInteraction", "Still", "Nod", "Shake", "Turntable", "Jerk", "Keyframes", "compose",
+           "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",
+           "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
+           "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",
+           "pick_guides", "animate_style"]

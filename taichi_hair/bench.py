@@ -91,13 +91,64 @@ def stage_breakdown(sim, n_steps: int) -> dict:
     return {name: _median_ms(values) / sim.substeps for name, values in times.items()}
 
 
-def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int, twist: str) -> dict:
+def _time_frames(sim, repeats):
+    """(compile + first step [s], median ms per 1/60 s frame) of a built simulator."""
+    import taichi as ti
+    start = time.perf_counter()
+    sim.step(1)
+    ti.sync()
+    compile_s = time.perf_counter() - start
+    steps = int(round(FRAME / sim.dt))
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        sim.step(steps)
+        ti.sync()
+        samples.append(time.perf_counter() - start)
+    return compile_s, _median_ms(samples)
+
+
+def bench_full_head(n_guides: int, repeats: int) -> dict:
+    """The project's head (mesh collider + neck/shoulder capsules) with n_guides x 32 nodes of
+    wavy hair from its scalp, shaking, with and without grid hair-hair interaction."""
+    from .interaction import HairInteraction
+    from .materials import Material
+    from .motion import Shake
+    from .roots import scalp_groom
+    from .scene import Head, Scene
+    from .simulator import Simulator
+    head = Head.default()
+    groom = scalp_groom(head.model, n_guides, style="wavy", length=SEGMENT * (NODES - 1),
+                        n_nodes=NODES, collider=head.colliders[0].grid, seed=0)
+    rows = []
+    for interaction in (None, HairInteraction()):
+        scene = Scene(groom=groom, head=head, material=Material(), motion=Shake(amplitude_deg=30, frequency_hz=1),
+                      hair_interaction=interaction)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sim = Simulator.from_scene(scene, dt=1e-3)
+        compile_s, frame_ms = _time_frames(sim, repeats)
+        rows.append({"guides": n_guides, "hair_interaction": interaction is not None, "substeps": sim.substeps,
+                     "compile_s": compile_s, "ms_per_frame": frame_ms,
+                     "strand_node_steps_per_s": n_guides * NODES * round(FRAME / sim.dt) / (frame_ms / 1e3)})
+    return {"scene": "default head mesh + capsules, wavy hair, shake 30 deg at 1 Hz, dt 1 ms", "rows": rows}
+
+
+def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int, twist: str,
+              head_guides: int = 0, dense: int = 0) -> dict:
     from .runtime import init
     init(arch=arch, precision=precision)
-    return {"arch": arch, "precision": precision, "dt": 1e-3, "frame_s": FRAME, "twist": twist,
-            "scene": "human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300, 32 nodes, 1 cm segments, "
-                     "gravity on, no drag",
-            "cases": [bench_case(n, repeats, stage_steps, twist) for n in strands]}
+    result = {"arch": arch, "precision": precision, "dt": 1e-3, "frame_s": FRAME, "twist": twist,
+              "scene": "human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300, 32 nodes, 1 cm segments, "
+                       "gravity on, no drag",
+              "cases": [bench_case(n, repeats, stage_steps, twist) for n in strands]}
+    if head_guides:
+        result["full_head"] = bench_full_head(head_guides, max(1, repeats // 2))
+    if dense:
+        from .interpolate import bench_interpolation
+        result["interpolation"] = bench_interpolation(n_dense=dense, n_nodes=NODES, n_guides=1000,
+                                                      repeats=repeats)
+    return result
 
 
 def format_table(result: dict) -> str:
@@ -113,6 +164,17 @@ def format_table(result: dict) -> str:
                      f"{c['strand_node_steps_per_s']:13.3e} | {'':13} {stage}")
     lines.append("ms/frame: fused launch (all stages in one kernel per frame), median; stage columns: "
                  "one synchronised kernel per stage, median per step (includes launch overhead)")
+    if "full_head" in result:
+        head = result["full_head"]
+        lines.append(f"full head: {head['scene']}")
+        for row in head["rows"]:
+            lines.append(f"{row['guides']:8d} guides, hair-hair {'on ' if row['hair_interaction'] else 'off'}: "
+                         f"{row['ms_per_frame']:10.1f} ms/frame  {row['strand_node_steps_per_s']:.3e} node-steps/s"
+                         f"  ({row['substeps']} substeps, compile {row['compile_s']:.1f} s)")
+    if "interpolation" in result:
+        dense = result["interpolation"]
+        lines.append("dense hair interpolation: " + ", ".join(
+            f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in dense.items()))
     return "\n".join(lines)
 
 
@@ -122,12 +184,14 @@ def main(args) -> int:
     results = []
     for precision in precisions:
         if len(precisions) == 1:
-            results.append(run_bench(args.arch, precision, strands, args.repeats, args.stage_steps, args.twist))
+            results.append(run_bench(args.arch, precision, strands, args.repeats, args.stage_steps,
+                                     args.twist, args.head_guides, args.dense))
             continue
         # one precision per process: Taichi cannot change it after init
         cmd = [sys.executable, "-m", "taichi_hair", "bench", "--json", "--arch", args.arch,
                "--precision", precision, "--strands", args.strands, "--repeats", str(args.repeats),
-               "--stage-steps", str(args.stage_steps), "--twist", args.twist]
+               "--stage-steps", str(args.stage_steps), "--twist", args.twist,
+               "--head-guides", str(args.head_guides), "--dense", str(args.dense)]
         out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
         results.extend(json.loads(out[out.index("[\n"):]))  # skip Taichi's banner line
     if args.json:
@@ -145,5 +209,9 @@ def add_parser(sub):
     p.add_argument("--repeats", type=int, default=5, help="timed frames per case (median)")
     p.add_argument("--stage-steps", type=int, default=5, help="steps timed stage by stage")
     p.add_argument("--twist", default="kmoch", choices=["kmoch", "quasistatic", "none"])
+    p.add_argument("--head-guides", type=int, default=1000,
+                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
+    p.add_argument("--dense", type=int, default=100_000,
+                   help="dense strands interpolated per frame on the interpolation row; 0 skips it")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=main)

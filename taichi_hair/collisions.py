@@ -36,6 +36,17 @@ def resolve_contact(p, p_prev, d, n, margin, friction):
 
 
 @ti.func
+def collider_frame(on_head, head: ti.template(), now, prev, p, p_prev):
+    """(p, p_prev) in the collider's frame: head coordinates at poses now / prev, or the world."""
+    local = p
+    local_prev = p_prev
+    if on_head:
+        local = to_head(head, now, p)
+        local_prev = to_head(head, prev, p_prev)
+    return local, local_prev
+
+
+@ti.func
 def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.template(),
                    x_prev: ti.template(), head: ti.template(), now, prev,
                    n_analytic, kinds: ti.template(), geometry: ti.template(), params: ti.template(),
@@ -45,50 +56,54 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
     """Resolve every free node of strand s against the colliders (analytic table, optional
     distance grid, optional hands). Head-attached shapes are handled in head coordinates so
     their friction sees the motion relative to the moving head (head poses now / prev); hands
-    sit at tool_points[tool_now] (tool_prev before the step). Returns the number of pushes."""
+    sit at tool_points[tool_now] (tool_prev before the step). A collider that holds the strand's
+    own root is skipped for that strand: pushing its nodes out would fight the clamped root
+    edge every step (a groom rooted inside a neck capsule, say). Returns the number of pushes."""
     pushes = 0
-    for i in range(node_count[s]):
-        if inv_mass[s, i] > 0.0:
-            p = x[s, i]
-            for c in range(n_analytic):
-                on_head = params[c][3] > 0.5
-                local = p
-                local_prev = x_prev[s, i]
-                if on_head:
-                    local = to_head(head, now, p)
-                    local_prev = to_head(head, prev, x_prev[s, i])
-                d, n = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], local)
-                if d < params[c][1]:
-                    local = resolve_contact(local, local_prev, d, n, params[c][1], params[c][2])
-                    p = local
-                    if on_head:
-                        p = from_head(head, now, local)
-                    pushes += 1
-            if ti.static(use_mesh):
-                # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
-                on_head = sdf_meta[2][0] > 0.5
-                local = p
-                local_prev = x_prev[s, i]
-                if on_head:
-                    local = to_head(head, now, p)
-                    local_prev = to_head(head, prev, x_prev[s, i])
-                d, n = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], local)
-                if d < sdf_meta[1][1]:
-                    local = resolve_contact(local, local_prev, d, n, sdf_meta[1][1], sdf_meta[1][2])
-                    p = local
-                    if on_head:
-                        p = from_head(head, now, local)
-                    pushes += 1
-            if ti.static(use_touch):
-                for k in range(tools.shape[0]):
-                    if ti.cast(tools[k][0], ti.i32) == HAND:
-                        # in the hand's frame: its own motion over the step does not count as slip
-                        centre = tool_points[tool_now, k]
-                        local = p - centre
+    root = x[s, 0]
+    for c in range(n_analytic):
+        on_head = params[c][3] > 0.5
+        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
+        d_root, _ = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], root_local)
+        if d_root > 0.0:
+            for i in range(node_count[s]):
+                if inv_mass[s, i] > 0.0:
+                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    d, n = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], local)
+                    if d < params[c][1]:
+                        local = resolve_contact(local, local_prev, d, n, params[c][1], params[c][2])
+                        x[s, i] = local
+                        if on_head:
+                            x[s, i] = from_head(head, now, local)
+                        pushes += 1
+    if ti.static(use_mesh):
+        # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
+        on_head = sdf_meta[2][0] > 0.5
+        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
+        d_root, _ = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], root_local)
+        if d_root > 0.0:
+            for i in range(node_count[s]):
+                if inv_mass[s, i] > 0.0:
+                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    d, n = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], local)
+                    if d < sdf_meta[1][1]:
+                        local = resolve_contact(local, local_prev, d, n, sdf_meta[1][1], sdf_meta[1][2])
+                        x[s, i] = local
+                        if on_head:
+                            x[s, i] = from_head(head, now, local)
+                        pushes += 1
+    if ti.static(use_touch):
+        for k in range(tools.shape[0]):
+            if ti.cast(tools[k][0], ti.i32) == HAND:
+                # in the hand's frame: its own motion over the step does not count as slip
+                centre = tool_points[tool_now, k]
+                for i in range(node_count[s]):
+                    if inv_mass[s, i] > 0.0:
+                        local = x[s, i] - centre
                         local_prev = x_prev[s, i] - tool_points[tool_prev, k]
                         d, n = analytic_distance(0, vec3(0.0), vec3(0.0), tools[k][1], local)
                         if d < tools[k][2]:
-                            p = centre + resolve_contact(local, local_prev, d, n, tools[k][2], tools[k][3])
+                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, tools[k][2],
+                                                               tools[k][3])
                             pushes += 1
-            x[s, i] = p
     return pushes

@@ -51,14 +51,16 @@ class Head:
     @classmethod
     def default(cls, margin: float = 0.002, friction: float = 0.3, spacing: float = 0.004) -> "Head":
         """The project's own head mesh (taichi_hair.headmesh) as a distance-grid collider riding
-        on the head, with its neck and shoulders as capsules that stay with the body (world)."""
+        on the head; its neck capsule turns with the head (a shake turns the neck too), the
+        shoulder capsules stay with the body (world)."""
         from .headmesh import default_head
         from .sdf import SignedDistanceGrid
         model = default_head()
         grid = SignedDistanceGrid.from_mesh(model.vertices, model.faces, spacing=spacing)
         colliders = [MeshCollider(grid=grid, margin=margin, friction=friction, attached="head")]
         colliders += [Capsule(p0=tuple(p0), p1=tuple(p1), radius=float(r), margin=margin,
-                              friction=friction, attached="world") for p0, p1, r in model.capsules]
+                              friction=friction, attached="head" if k == 0 else "world")
+                      for k, (p0, p1, r) in enumerate(model.capsules)]
         return cls(colliders=tuple(colliders), mesh=(model.vertices, model.faces), model=model)
 
 
