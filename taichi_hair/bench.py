@@ -110,7 +110,7 @@ def _time_frames(sim, repeats):
 
 def bench_full_head(n_guides: int, repeats: int) -> dict:
     """The project's head (mesh collider + neck/shoulder capsules) with n_guides x 32 nodes of
-    wavy hair from its scalp, shaking, with and without grid hair-hair interaction."""
+    straight hair from its scalp, shaking, with and without grid hair-hair interaction."""
     from .interaction import HairInteraction
     from .materials import Material
     from .motion import Shake
@@ -118,7 +118,7 @@ def bench_full_head(n_guides: int, repeats: int) -> dict:
     from .scene import Head, Scene
     from .simulator import Simulator
     head = Head.default()
-    groom = scalp_groom(head.model, n_guides, style="wavy", length=SEGMENT * (NODES - 1),
+    groom = scalp_groom(head.model, n_guides, style="straight", length=SEGMENT * (NODES - 1),
                         n_nodes=NODES, collider=head.colliders[0].grid, seed=0)
     rows = []
     for interaction in (None, HairInteraction()):
@@ -131,7 +131,7 @@ def bench_full_head(n_guides: int, repeats: int) -> dict:
         rows.append({"guides": n_guides, "hair_interaction": interaction is not None, "substeps": sim.substeps,
                      "compile_s": compile_s, "ms_per_frame": frame_ms,
                      "strand_node_steps_per_s": n_guides * NODES * round(FRAME / sim.dt) / (frame_ms / 1e3)})
-    return {"scene": "default head mesh + capsules, wavy hair, shake 30 deg at 1 Hz, dt 1 ms", "rows": rows}
+    return {"scene": "default head mesh + capsules, straight combed hair, shake 30 deg at 1 Hz, dt 1 ms", "rows": rows}
 
 
 def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int, twist: str,

@@ -106,19 +106,80 @@ def _smoothstep(u):
     return u * u * (3.0 - 2.0 * u)
 
 
-def _centrelines(roots, growth, flow, lengths, droop_length, samples):
+def _centrelines(roots, growth, flow, lengths, droop_length, samples, collider=None, keep_out=0.0,
+                 free_length=None):
     """Fine centrelines [S, M, 3] with arc length s [S, M], their unit tangents [S, M, 3] and a
-    side vector [S, 3] normal to each strand's plane (span of growth and flow)."""
+    side vector [S, 3] normal to each strand's plane (span of growth and flow). With a collider,
+    the centreline is integrated step by step and slides over the head instead of entering it:
+    where a step would come within keep_out [m] of the surface its inward part is removed and
+    the point is set back out, so the strand lies on the head as combed hair does, without the
+    kinks a per-node push-out would leave. The first free_length [S] metres (the root edge)
+    grow freely along the growth direction."""
     s = np.linspace(0.0, 1.0, samples)[None] * lengths[:, None]
     w = _smoothstep(s / droop_length)[..., None]
     d = (1.0 - w) * growth[:, None] + w * flow[:, None]
     d /= np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-12)
     ds = np.diff(s, axis=1)[..., None]
-    x = roots[:, None] + np.concatenate([np.zeros_like(roots[:, None]), np.cumsum(0.5 * (d[:, 1:] + d[:, :-1]) * ds, axis=1)], axis=1)
+    steps = 0.5 * (d[:, 1:] + d[:, :-1]) * ds
+    if collider is None:
+        x = roots[:, None] + np.concatenate([np.zeros_like(roots[:, None]), np.cumsum(steps, axis=1)], axis=1)
+    else:
+        x = np.empty(d.shape)
+        x[:, 0] = roots
+        rooted = s < free_length[:, None]
+        for m in range(samples - 1):
+            slid = _slide(collider, x[:, m], steps[:, m], keep_out)
+            x[:, m + 1] = np.where(rooted[:, m + 1, None], x[:, m] + steps[:, m], slid)
+        x = _smooth_off_surface(x, rooted, collider, keep_out, lengths / samples)
+        tangent = np.gradient(x, axis=1)
+        d = tangent / np.maximum(np.linalg.norm(tangent, axis=2, keepdims=True), 1e-12)
     side = np.cross(growth, flow)
     fallback = np.cross(growth, np.where(np.abs(growth[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
     side = np.where(np.linalg.norm(side, axis=1, keepdims=True) > 1e-6, side, fallback)
     return x, s, d, side / np.linalg.norm(side, axis=1, keepdims=True)
+
+
+def _smooth_off_surface(x, keep, collider, keep_out, ds, window=0.03, passes=3):
+    """Round off the corners where a centreline meets the head and starts sliding: moving
+    averages over `window` [m] of arc length, then points set back out to keep_out. Samples
+    marked in keep [S, M] (the root edge) are left alone."""
+    half = max(1, int(round(0.5 * window / ds.min())))
+    for _ in range(passes):
+        padded = np.concatenate([np.repeat(x[:, :1], half, axis=1), x, np.repeat(x[:, -1:], half, axis=1)], axis=1)
+        csum = np.cumsum(padded, axis=1)
+        csum = np.concatenate([np.zeros_like(csum[:, :1]), csum], axis=1)
+        averaged = (csum[:, 2 * half + 1:] - csum[:, :-2 * half - 1]) / (2 * half + 1)
+        x = np.where(keep[..., None], x, averaged)
+        flat = x.reshape(-1, 3)
+        gap = keep_out - collider.sample(flat)
+        out = (gap > 0) & ~keep.reshape(-1)
+        if out.any():
+            g = collider.gradient(flat[out])
+            flat[out] += gap[out, None] * g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        x = flat.reshape(x.shape)
+    return x
+
+
+def _slide(collider, p, step, keep_out):
+    """p + step, with the part of step that heads into the collider removed where the new point
+    would be closer than keep_out [m] to it, and set back out to keep_out; the step's length is
+    kept so arc length stays arc length."""
+    q = p + step
+    near = collider.sample(q) < keep_out
+    if near.any():
+        g = collider.gradient(p[near])
+        g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        st = step[near]
+        inward = np.minimum(np.sum(st * g, axis=1, keepdims=True), 0.0)
+        tangential = st - inward * g
+        tangential *= np.linalg.norm(st, axis=1, keepdims=True) / np.maximum(
+            np.linalg.norm(tangential, axis=1, keepdims=True), 1e-12)
+        moved = p[near] + tangential
+        gap = keep_out - collider.sample(moved)
+        gq = collider.gradient(moved)
+        gq /= np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
+        q[near] = moved + np.maximum(gap, 0.0)[:, None] * gq
+    return q
 
 
 def _offsets(style, s, d, side, params, rng):
@@ -194,8 +255,9 @@ def scalp_groom(head: HeadModel, n_guides: int, *, style: str = "straight", leng
     of centreline per turn about the centreline). Amplitude/radius and wavelength/pitch vary per
     strand by 1 +- shape_variation, with a random phase. Waves and curls start after the root
     edge, which leaves the scalp along the growth direction from root_offset [m] above it.
-    collider: optional `taichi_hair.sdf.SignedDistanceGrid` of the head; nodes past the root
-    edge closer than clearance [m] are pushed out of it. seed: roots, lengths and shapes.
+    collider: optional `taichi_hair.sdf.SignedDistanceGrid` of the head: the centreline slides
+    over it (kept clearance plus the wave or curl amplitude away), and any node past the root
+    edge still closer than clearance [m] is pushed out. seed: roots, lengths and shapes.
     """
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
@@ -230,7 +292,9 @@ def scalp_groom(head: HeadModel, n_guides: int, *, style: str = "straight", leng
     stretch *= (1.0 + shape_variation) / (1.0 - shape_variation) if style != "straight" else 1.0
     samples = int(min(64 * n_nodes * stretch, 8192))
     base = roots + root_offset * normals
-    centre, s, d, side = _centrelines(base, growth, flow, lengths * stretch * 1.05, droop_length, samples)
+    amplitude = {"straight": 0.0, "wavy": wave_amplitude, "curly": curl_radius}[style] * (1.0 + shape_variation)
+    centre, s, d, side = _centrelines(base, growth, flow, lengths * stretch * 1.05 + 0.1, droop_length, samples,
+                                      collider, clearance + amplitude, 1.5 * edge)
     curve = centre + _offsets(style, s, d, side, params, rng)
     nodes = _resample(curve, lengths, n_nodes)
     if collider is not None:

@@ -23,7 +23,8 @@ from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
 from .state import COUNTERS
 from .twist import TWIST_MODES
-from .step import StepPlan, advance, kmoch_step, place_roots, run_twist_update, strand_mechanical_energy
+from .step import (StepPlan, advance, kmoch_step, place_roots, project_constraints, run_twist_update,
+                   strand_mechanical_energy)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 
@@ -108,6 +109,8 @@ class Simulator:
         self._head = self._head_prev = (np.eye(3), np.zeros(3))
         if root_motion is not None:
             self._place_groom(*self._head_at(0.0))
+        if self.plan.contacts:
+            self._resolve_initial_contacts()
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
@@ -146,6 +149,21 @@ class Simulator:
         load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
         st, md = self.state, self.model
         place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+
+    def _resolve_initial_contacts(self):
+        """Move groomed nodes that start inside a collider's margin out of it before the first
+        step, so the correction does not turn into a velocity kick (the push over one substep
+        would read as metres per second)."""
+        st, md, c = self.state, self.model, self.control
+        load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
+        load_tools(c, self.touch, np.full(2, self.time))
+        st.x_prev.copy_from(st.x)
+        project_constraints(self.plan.projection_tol, self.plan.projection_iterations, self.plan.n_analytic,
+                            True, self.plan.mesh, self.plan.touch, md.node_count, md.inv_mass,
+                            md.rest_length, c.head, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
+                            c.tools, c.tool_points, st.x, st.x_prev, st.dx, *st.scratch_edge,
+                            st.counters, st.residuals)
+        self._reset_counters()
 
     @property
     def head_transform(self):
