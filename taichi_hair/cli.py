@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from . import bench
+from . import bench, runner
 
 
 def _demo(args) -> int:
@@ -58,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
     demo.set_defaults(func=_demo)
     bench.add_parser(sub)
+    runner.add_parser(sub)
     return parser
 
 

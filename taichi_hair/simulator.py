@@ -261,6 +261,42 @@ class Simulator:
             f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
             step=step, strand=int(first))
 
+    # ---- checkpoints --------------------------------------------------------------------
+    def save_state(self, path) -> None:
+        """Write the dynamic state (positions, velocities, material angles, time, step count,
+        head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
+        crash mid-write leaves the previous checkpoint intact."""
+        import os
+        path = os.fspath(path)
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
+                 theta=self.state.theta.to_numpy(), time=self.time, steps=self.steps_taken,
+                 head=_pose(*self._head), head_prev=_pose(*self._head_prev),
+                 shape=np.array([self.groom.n_strands, self.groom.max_nodes]))
+        os.replace(tmp, path)
+
+    def load_state(self, path) -> None:
+        """Restore a state written by `save_state` for this same groom; ValueError if the file
+        does not fit (other strand or node counts, missing arrays, non-finite values)."""
+        try:
+            with np.load(path) as data:
+                saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
+        except (OSError, KeyError, ValueError) as err:
+            raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
+        expected = [self.groom.n_strands, self.groom.max_nodes]
+        if list(saved["shape"]) != expected:
+            raise ValueError(f"{path}: state of {list(saved['shape'])} strands x nodes, this groom has {expected}")
+        if not all(np.all(np.isfinite(saved[k])) for k in ("x", "v", "theta")):
+            raise ValueError(f"{path}: the saved state has non-finite values")
+        self.state.x.from_numpy(saved["x"].astype(arrays.np_float()))
+        self.state.v.from_numpy(saved["v"].astype(arrays.np_float()))
+        self.state.theta.from_numpy(saved["theta"].astype(arrays.np_float()))
+        self.time, self.steps_taken = float(saved["time"]), int(saved["steps"])
+        self._head = (saved["head"][:3].astype(np.float64), saved["head"][3].astype(np.float64))
+        self._head_prev = (saved["head_prev"][:3].astype(np.float64), saved["head_prev"][3].astype(np.float64))
+        self._orient_roots()
+        self.update_frames()
+
     def set_user_forces(self, force) -> None:
         """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
         if force is None:

@@ -1,0 +1,26 @@
+"""A single horizontal strand sagging under its own weight: the validation case of the
+accuracy report (its tip is checked against the elastica in tests/test_step.py).
+
+    .venv/bin/taichi-hair run scenes/cantilever.py --out out/cantilever
+"""
+
+import numpy as np
+
+import taichi_hair as th
+from taichi_hair.runner import Shot
+
+LENGTH = 0.3
+SEGMENTS = 30
+
+
+def build() -> th.Scene:
+    ds = LENGTH / (SEGMENTS - 0.5)  # the clamped root edge straddles the clamp at x = 0
+    x = -ds / 2 + ds * np.arange(SEGMENTS + 1)
+    groom = th.Groom.from_polylines(np.stack([x, np.zeros_like(x), np.zeros_like(x)], axis=1))
+    material = th.Material(youngs_modulus=3e6, shear_modulus=1e6, radius=1e-3, density=1000.0)
+    return th.Scene(groom=groom, material=material, drag=0.02, twist="none")
+
+
+def shot() -> Shot:
+    return Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.1, 0.1, 0.1),
+                eye=(0.15, 0.6, -0.05), target=(0.15, 0.0, -0.08))

@@ -1,0 +1,23 @@
+"""Long wavy hair with hair-hair interaction, on a turntable.
+
+    .venv/bin/taichi-hair run scenes/turntable_wavy.py --out out/turntable_wavy
+"""
+
+import taichi_hair as th
+from taichi_hair.runner import Shot
+
+
+def build() -> th.Scene:
+    head = th.Head.default()
+    groom = th.scalp_groom(head.model, 400, style="wavy", length=0.4, n_nodes=40, wave_amplitude=0.01,
+                           wave_wavelength=0.08, collider=head.colliders[0].grid, seed=2)
+    return th.Scene(
+        groom=groom, head=head, material=th.Material(ellipticity=1.2),
+        motion=th.Turntable(period_s=6.0, ramp_s=0.5),
+        hair_interaction=th.HairInteraction(cell_size=0.02, repulsion=1.0, friction=5.0),
+        drag=5e-4)
+
+
+def shot() -> Shot:
+    return Shot(frames=96, fps=24, dense_strands=20000, hair_colour=(0.35, 0.2, 0.1),
+                eye=(0.0, 0.85, 0.0), target=(0.0, 0.0, -0.12))

@@ -1,0 +1,23 @@
+"""Straight hair in gusty, turbulent wind.
+
+    .venv/bin/taichi-hair run scenes/wind_straight.py --out out/wind_straight
+"""
+
+import taichi_hair as th
+from taichi_hair.runner import Shot
+
+
+def build() -> th.Scene:
+    head = th.Head.default()
+    groom = th.scalp_groom(head.model, 300, style="straight", length=0.3, n_nodes=31,
+                           collider=head.colliders[0].grid, seed=1)
+    return th.Scene(
+        groom=groom, head=head, material=th.Material(),
+        wind=th.Wind(velocity=(2.5, 0.0, 0.0), gust_amplitude=0.6, gust_frequency=0.7,
+                     turbulence=0.8, turbulence_scale=0.15, seed=4),
+        drag=5e-4)
+
+
+def shot() -> Shot:
+    return Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
+                eye=(0.0, 0.8, 0.05), target=(0.0, 0.0, -0.08))

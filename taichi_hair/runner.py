@@ -1,0 +1,224 @@
+"""`taichi-hair run SCENE.py --out DIR`: simulate a scene script, make dense hair, render PNG
+frames and an MP4, checkpointing after every frame so a killed run resumes where it stopped.
+
+This module is glue: it calls the `render` package for pictures (render knows nothing of
+physics; nothing here rasterises).
+"""
+
+from dataclasses import dataclass
+import importlib.util
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .colliders import _scalar, _vec
+from .progress import ProgressBar
+
+STATE_FILE = "state.npz"
+PROGRESS_FILE = "progress.json"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Shot:
+    """How a scene is filmed: frames at fps (one frame = 1/fps s of simulated time), the
+    simulator's dt [s], image size, a look-at camera (eye, target [m], vertical fov [deg], z up)
+    orbiting `orbit_degrees` about the vertical through the target over the shot (a
+    turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
+    and fibre width [m], supersampling, and the PNG/MP4 names."""
+
+    frames: int = 72
+    fps: int = 24
+    dt: float = 1e-3
+    width: int = 640
+    height: int = 480
+    eye: tuple = (0.0, 0.75, 0.15)
+    target: tuple = (0.0, 0.0, -0.05)
+    fov_y: float = 35.0
+    orbit_degrees: float = 0.0
+    dense_strands: int = 0
+    hair_colour: tuple = (0.28, 0.17, 0.09)
+    hair_width: float = 1.5e-4
+    supersample: int = 1
+
+    def __post_init__(self):
+        for name in ("frames", "fps", "width", "height", "supersample"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if not (isinstance(self.dense_strands, int) and self.dense_strands >= 0):
+            raise ValueError(f"dense_strands must be an integer >= 0, got {self.dense_strands!r}")
+        _scalar("dt", self.dt, "s", inclusive=False)
+        _scalar("fov_y", self.fov_y, "degrees", inclusive=False)
+        _scalar("hair_width", self.hair_width, "m", inclusive=False)
+        _vec("eye", self.eye)
+        _vec("target", self.target)
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, int(round(1.0 / (self.fps * self.dt))))
+
+
+def load_scene_module(path):
+    """Import a scene script (a file with build() -> Scene, optionally shot() -> Shot,
+    interpolator(scene, simulator) -> Interpolator and PRECISION = "float32" / "float64")."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"scene script {path} does not exist")
+    spec = importlib.util.spec_from_file_location(f"taichi_hair_scene_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not callable(getattr(module, "build", None)):
+        raise ValueError(f"scene script {path} must define build() returning a taichi_hair.Scene")
+    return module
+
+
+def scalp_interpolator(scene, simulator, n_dense, seed=0):
+    """Dense strands rooted on the head model's scalp, blended from the guides; dense nodes kept
+    out of the cranium's ellipsoid. None when the scene has no head model."""
+    from .interpolate import Interpolator
+    from .roots import sample_scalp
+    head = scene.head
+    if head is None or head.model is None or n_dense == 0:
+        return None
+    groom = scene.groom
+    roots = groom.positions[:, 0]
+    normals = groom.positions[:, 1] - roots
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    dense_roots, _ = sample_scalp(head.model, n_dense, seed=seed + 1)
+    cranium = np.ptp(head.model.vertices, axis=0) * np.array([0.5, 0.45, 0.5])
+    return Interpolator(roots, normals, dense_roots, groom.max_nodes, mode="blend", blend=0.5,
+                        frizz=0.0008, length_variation=0.05, seed=seed,
+                        head=(np.zeros(3), cranium), head_margin=0.001)
+
+
+class FrameWriter:
+    """Renders one frame of hair (+ head mesh) with `render` and writes it as a PNG."""
+
+    def __init__(self, shot: Shot, scene):
+        import render
+        self.render = render
+        self.shot = shot
+        self.mesh = scene.head.mesh if scene.head is not None else None
+        self.settings = render.RenderSettings(supersample=shot.supersample)
+
+    def camera(self, frame):
+        angle = math.radians(self.shot.orbit_degrees * frame / max(self.shot.frames, 1))
+        c, s = math.cos(angle), math.sin(angle)
+        eye = np.asarray(self.shot.eye) - self.shot.target
+        eye = np.array([c * eye[0] - s * eye[1], s * eye[0] + c * eye[1], eye[2]]) + self.shot.target
+        return self.render.Camera(eye=tuple(eye), target=tuple(self.shot.target), up=(0.0, 0.0, 1.0),
+                                  fov_y=self.shot.fov_y, width=self.shot.width, height=self.shot.height)
+
+    def write(self, path, frame, hair_points, head_pose):
+        meshes = []
+        if self.mesh is not None:
+            rotation, translation = head_pose
+            meshes.append(self.render.Mesh(vertices=np.asarray(self.mesh[0]) @ rotation.T + translation,
+                                           faces=self.mesh[1]))
+        hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
+        image = self.render.render_frame(self.camera(frame), hair=hair, meshes=meshes, settings=self.settings)
+        self.render.write_png(path, image)
+
+
+def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None) -> dict:
+    """Simulate, interpolate and render `script` into out_dir: frames/frame_NNNNN.png, the MP4,
+    state.npz (after every frame) and progress.json. Returns the summary dict."""
+    from .runtime import init
+    from .simulator import Simulator
+    module = load_scene_module(script)
+    init(precision=getattr(module, "PRECISION", "float32"))
+    scene = module.build()
+    shot = module.shot() if callable(getattr(module, "shot", None)) else Shot()
+    if overrides:
+        shot = Shot(**{**shot.__dict__, **overrides})
+    total = shot.frames if frames is None else frames
+    out = Path(out_dir)
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    sim = Simulator.from_scene(scene, dt=shot.dt)
+    interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))
+              else scalp_interpolator(scene, sim, shot.dense_strands))
+    writer = FrameWriter(shot, scene)
+    done = _resume_point(out, sim) if resume else 0
+    times = {"simulation": [], "interpolation": [], "rendering": []}
+    with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
+        bar.update(done)
+        for frame in range(done, total):
+            _render_one(out, frame, shot, sim, interp, writer, times)
+            sim.save_state(out / STATE_FILE)
+            (out / PROGRESS_FILE).write_text(json.dumps({"frames_done": frame + 1, "time": sim.time}))
+            bar.update(1)
+    video = writer.render.write_mp4(out / f"{Path(script).stem}.mp4",
+                                    (writer.render.read_png(out / "frames" / f"frame_{k:05d}.png")
+                                     for k in range(total)), fps=shot.fps)
+    return _summary(script, total, done, times, video, sim)
+
+
+def _resume_point(out, sim) -> int:
+    """Frames already finished: restore the simulator from the last checkpoint."""
+    progress = out / PROGRESS_FILE
+    if not (progress.exists() and (out / STATE_FILE).exists()):
+        return 0
+    sim.load_state(out / STATE_FILE)
+    done = int(json.loads(progress.read_text())["frames_done"])
+    missing = [k for k in range(done) if not (out / "frames" / f"frame_{k:05d}.png").exists()]
+    if missing:
+        raise ValueError(f"{out}: checkpoint says {done} frames are done but frame {missing[0]} is missing; "
+                         f"delete {out} to start over")
+    return done
+
+
+def _render_one(out, frame, shot, sim, interp, writer, times):
+    start = time.perf_counter()
+    sim.step(shot.steps_per_frame)
+    guides = sim.positions()
+    times["simulation"].append(time.perf_counter() - start)
+    start = time.perf_counter()
+    rotation, translation = sim.head_transform
+    if interp is not None:
+        hair = interp.interpolate(guides, head_rotation=rotation, head_translation=translation)
+    else:
+        counts = sim.groom.node_counts
+        hair = [guides[s, : counts[s]] for s in range(sim.n_strands)]
+    times["interpolation"].append(time.perf_counter() - start)
+    start = time.perf_counter()
+    writer.write(out / "frames" / f"frame_{frame:05d}.png", frame, hair, (rotation, translation))
+    times["rendering"].append(time.perf_counter() - start)
+
+
+def _summary(script, total, resumed_from, times, video, sim) -> dict:
+    per_frame = {k: (1e3 * float(np.median(v)) if v else 0.0) for k, v in times.items()}
+    return {"scene": str(script), "frames": total, "resumed_from": resumed_from, "video": str(video),
+            "ms_per_frame": per_frame, "simulated_s": sim.time, "stats": sim.stats()}
+
+
+def format_summary(summary: dict) -> str:
+    ms = summary["ms_per_frame"]
+    return (f"{summary['scene']}: {summary['frames']} frames (resumed from {summary['resumed_from']}), "
+            f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}\n"
+            f"median ms per frame: simulation {ms['simulation']:.1f}, interpolation "
+            f"{ms['interpolation']:.1f}, rendering {ms['rendering']:.1f}")
+
+
+def add_parser(sub):
+    p = sub.add_parser("run", help="simulate a scene script and render frames, an MP4 and checkpoints")
+    p.add_argument("scene", help="path of a scene script, e.g. scenes/shake_curly.py")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--frames", type=int, default=None, help="frames to make (default: the scene's shot)")
+    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--width", type=int, default=None)
+    p.add_argument("--height", type=int, default=None)
+    p.add_argument("--dense", type=int, default=None, help="dense strands (0: draw the guides)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    overrides = {k: v for k, v in (("width", args.width), ("height", args.height),
+                                   ("dense_strands", args.dense)) if v is not None}
+    summary = run_scene(args.scene, args.out, frames=args.frames, resume=args.resume,
+                        progress=not args.no_progress, overrides=overrides)
+    print(format_summary(summary))
+    return 0
