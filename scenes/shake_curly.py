@@ -10,7 +10,7 @@ from taichi_hair.runner import Shot
 def build() -> th.Scene:
     head = th.Head.default()
     groom = th.scalp_groom(head.model, 300, style="curly", length=0.22, n_nodes=40, curl_radius=0.008,
-                           curl_pitch=0.03, collider=head.colliders[0].grid, seed=3)
+                           curl_pitch=0.03, collider=head.distance_field(), seed=3)
     return th.Scene(
         groom=groom, head=head,
         material=th.Material(youngs_modulus=3e9, shear_modulus=1e9, radius=45e-6, ellipticity=1.5),

@@ -24,7 +24,7 @@ def comb(t):
 def build() -> th.Scene:
     head = th.Head.default()
     groom = th.scalp_groom(head.model, 300, style="straight", length=0.25, n_nodes=26,
-                           comb=(0.0, 1.0, 0.0), comb_strength=0.6, collider=head.colliders[0].grid, seed=5)
+                           comb=(0.0, 1.0, 0.0), comb_strength=0.6, collider=head.distance_field(), seed=5)
     return th.Scene(
         groom=groom, head=head, material=th.Material(),
         touch=(th.Hand(path=hand, radius=0.035), th.Grab(path=comb, radius=0.03, stiffness=0.01,

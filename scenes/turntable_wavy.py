@@ -10,7 +10,7 @@ from taichi_hair.runner import Shot
 def build() -> th.Scene:
     head = th.Head.default()
     groom = th.scalp_groom(head.model, 400, style="wavy", length=0.4, n_nodes=40, wave_amplitude=0.01,
-                           wave_wavelength=0.08, collider=head.colliders[0].grid, seed=2)
+                           wave_wavelength=0.08, collider=head.distance_field(), seed=2)
     return th.Scene(
         groom=groom, head=head, material=th.Material(ellipticity=1.2),
         motion=th.Turntable(period_s=6.0, ramp_s=0.5),

@@ -10,7 +10,7 @@ from taichi_hair.runner import Shot
 def build() -> th.Scene:
     head = th.Head.default()
     groom = th.scalp_groom(head.model, 300, style="straight", length=0.3, n_nodes=31,
-                           collider=head.colliders[0].grid, seed=1)
+                           collider=head.distance_field(), seed=1)
     return th.Scene(
         groom=groom, head=head, material=th.Material(),
         wind=th.Wind(velocity=(2.5, 0.0, 0.0), gust_amplitude=0.6, gust_frequency=0.7,

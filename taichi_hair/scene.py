@@ -38,6 +38,13 @@ class Head:
             if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
                 raise ValueError("head.mesh faces index vertices out of range")
 
+    def distance_field(self):
+        """The head's colliders as one host-side distance field (object with sample(points [M, 3])
+        -> [M] m and gradient(points) -> [M, 3]) in head coordinates, for grooming: strands grown
+        with it avoid the neck and shoulders as well as the skull. World-attached colliders count
+        at the rest pose."""
+        return ColliderUnion(self.colliders)
+
     @classmethod
     def sphere(cls, radius: float = 0.1, centre=(0.0, 0.0, 0.0), margin: float = 0.002,
                friction: float = 0.3) -> "Head":
@@ -62,6 +69,44 @@ class Head:
                               friction=friction, attached="head" if k == 0 else "world")
                       for k, (p0, p1, r) in enumerate(model.capsules)]
         return cls(colliders=tuple(colliders), mesh=(model.vertices, model.faces), model=model)
+
+
+class ColliderUnion:
+    """Signed distance to the union of colliders (min over them), on the host."""
+
+    def __init__(self, colliders):
+        self.colliders = tuple(colliders)
+
+    def _distances(self, points):
+        return np.stack([_host_distance(c, points) for c in self.colliders])
+
+    def sample(self, points):
+        points = np.asarray(points, dtype=np.float64)
+        return self._distances(points).min(axis=0) if self.colliders else np.full(len(points), np.inf)
+
+    def gradient(self, points, h=1e-4):
+        points = np.asarray(points, dtype=np.float64)
+        return np.stack([(self.sample(points + h * e) - self.sample(points - h * e)) / (2 * h)
+                         for e in np.eye(3)], axis=1)
+
+
+def _host_distance(c, p):
+    """Signed distance [M] of points p [M, 3] from one collider (the kernels' formulas)."""
+    if isinstance(c, MeshCollider):
+        return c.grid.sample(p)
+    kind, a, b, radius = c.packed()
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if isinstance(c, Sphere):
+        return np.linalg.norm(p - a, axis=1) - radius
+    if isinstance(c, Ellipsoid):
+        q = p - a
+        k0 = np.linalg.norm(q / b, axis=1)
+        return k0 * (k0 - 1.0) / np.maximum(np.linalg.norm(q / b**2, axis=1), 1e-12)
+    if isinstance(c, Capsule):
+        ab = b - a
+        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+        return np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - radius
+    return (p - a) @ b
 
 
 @dataclass(frozen=True, kw_only=True)

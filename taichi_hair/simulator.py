@@ -111,6 +111,7 @@ class Simulator:
             self._place_groom(*self._head_at(0.0))
         if self.plan.contacts:
             self._resolve_initial_contacts()
+            self._tighten_bound_to_start(strict, stability_factor)
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
@@ -164,6 +165,15 @@ class Simulator:
                             c.tools, c.tool_points, st.x, st.x_prev, st.dx, *st.scratch_edge,
                             st.counters, st.residuals)
         self._reset_counters()
+
+    def _tighten_bound_to_start(self, strict, stability_factor):
+        """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
+        x = self.positions()
+        start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
+        bound = stable_time_step(start, self.model.materials, self.control.drag, stability_factor)
+        if bound < self.stable_dt:
+            self.stable_dt = bound
+            self.substeps = self._substeps_for(strict)
 
     @property
     def head_transform(self):
