@@ -22,13 +22,27 @@ class Groom:
 
     positions: float64 [S, N, 3], metres; node 0 is the root.
     node_counts: int32 [S], 3 <= node_counts[s] <= N.
+    rest_curvature: optional float64 [S, N, 4], the rest material curvatures (wbar_i^{i-1},
+        wbar_i^i) [1] of each node; None (the default) measures them on `positions`, so the
+        groomed shape is the unloaded shape. Set by `taichi_hair.sag_free`, which chooses them so
+        that the groomed shape is the shape at rest under gravity.
     """
 
     positions: np.ndarray
     node_counts: np.ndarray
+    rest_curvature: np.ndarray | None = None
 
     def __post_init__(self):
         _validate(self.positions, self.node_counts)
+        if self.rest_curvature is not None:
+            rc = np.asarray(self.rest_curvature)
+            if rc.shape != self.positions.shape[:2] + (4,) or not np.all(np.isfinite(rc)):
+                raise ValueError(f"rest_curvature must be finite with shape {list(self.positions.shape[:2]) + [4]}, "
+                                 f"got {list(rc.shape)}")
+
+    def with_rest_curvature(self, rest_curvature) -> "Groom":
+        """The same groom with explicit rest material curvatures [S, N, 4] (see rest_curvature)."""
+        return Groom(self.positions, self.node_counts, np.asarray(rest_curvature, dtype=np.float64))
 
     @property
     def n_strands(self) -> int:

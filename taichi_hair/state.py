@@ -185,6 +185,8 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
     update_material_frames(node_count, state.theta, state.bishop_u, state.bishop_v, state.m1, state.m2)
     rest_kappa = arrays.vectors(4, (groom.n_strands, groom.max_nodes))
     material_curvatures(node_count, state.kb, state.m1, state.m2, rest_kappa)
+    if groom.rest_curvature is not None:  # e.g. a sag-free rest shape: not the groomed one
+        rest_kappa.from_numpy(np.asarray(groom.rest_curvature).astype(arrays.np_float()))
     rest_twist = np.zeros((groom.n_strands, groom.max_nodes))
     rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
     stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["linear_density"]], axis=1)
