@@ -19,6 +19,7 @@ shake, gale wind) run for a short simulated time; outcome stable / substepped (n
 """
 
 import argparse
+import functools
 import json
 import math
 import statistics
@@ -30,6 +31,17 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+
+from render import write_png
+from render.plot import PALETTE, Series, loglog
+
+from . import runtime
+from .forces import Wind
+from .groom import Groom
+from .materials import Material
+from .motion import Shake
+from .simulator import Simulator
+from .stability import SimulationDiverged
 
 REPORT_MARK = "-- taichi_hair report json --"
 BEAM_LENGTH = 1.0
@@ -60,25 +72,19 @@ def _elastica_end_slope(kappa0, load, length, n):
     return dth, np.array([x, z])
 
 
+@functools.lru_cache(maxsize=8)
 def elastica_tip(length: float, weight: float, ei: float, n: int = 4000) -> np.ndarray:
     """Tip (x, z) [m] of an inextensible cantilever clamped horizontally at the origin along +x,
     sagging under its weight w [N/m] (z up): EI theta'' = -w (L - s) cos theta, theta'(L) = 0,
-    by shooting on theta'(0) (bisection, then the RK4 tip)."""
+    by shooting on theta'(0) with bisection (RK4 on n steps, trapezoid rule for the tip)."""
     load = weight / ei
     lo, hi = 0.0, load * length**2
-    while _elastica_end_slope(hi, load, length, 200)[0] < 0:
+    while _elastica_end_slope(hi, load, length, n)[0] < 0:
         hi *= 2.0
-    for _ in range(60):
+    while hi - lo > 1e-13 * hi:
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _elastica_end_slope(mid, load, length, n // 8)[0] < 0 else (lo, mid)
-    a, b = lo, hi * (1 + 1e-6)  # secant polish at full resolution from the bracket
-    fa, fb = _elastica_end_slope(a, load, length, n)[0], _elastica_end_slope(b, load, length, n)[0]
-    for _ in range(4):
-        if fb == fa:
-            break
-        a, fa, b = b, fb, b - fb * (b - a) / (fb - fa)
-        fb = _elastica_end_slope(b, load, length, n)[0]
-    return _elastica_end_slope(b, load, length, n)[1]
+        lo, hi = (mid, hi) if _elastica_end_slope(mid, load, length, n)[0] < 0 else (lo, mid)
+    return _elastica_end_slope(0.5 * (lo + hi), load, length, n)[1].copy()
 
 
 def beam_frequency(length: float, ei: float, linear_density: float) -> float:
@@ -98,7 +104,6 @@ def first_mode_slope(s, length: float):
 def clamped_beam(n_segments: int, slope=None):
     """Horizontal beam along +x whose clamped root edge straddles the clamp (midpoint at x = 0), so
     the free length is exactly BEAM_LENGTH; slope(s) [rad] optionally bends it (exact edge lengths)."""
-    from .groom import Groom
     ds = BEAM_LENGTH / (n_segments - 0.5)
     s_mid = -ds / 2 + ds * (np.arange(n_segments) + 0.5)
     theta = np.zeros(n_segments) if slope is None else slope(np.clip(s_mid, 0.0, None))
@@ -110,7 +115,6 @@ def clamped_helix(n_segments: int):
     """The curly test strand hanging along -z: a helix (radius HELIX_CURL, pitch HELIX_PITCH) with
     nodes at arc length s = -ds/2 + k ds, so the clamped root edge straddles s = 0 and the free
     length is HELIX_LENGTH at every resolution (the tip is the same material point)."""
-    from .groom import Groom
     ds = HELIX_LENGTH / (n_segments - 0.5)
     rise = HELIX_PITCH / (2 * math.pi)
     omega = 1.0 / math.hypot(HELIX_CURL, rise)
@@ -119,13 +123,11 @@ def clamped_helix(n_segments: int):
                                           -rise * angle], axis=1))
 
 
-def beam_material():
-    from .materials import Material
+def beam_material() -> Material:
     return Material(youngs_modulus=1e7, shear_modulus=1e7 / 3, radius=0.01, density=1000.0)
 
 
-def helix_material():
-    from .materials import Material
+def helix_material() -> Material:
     return Material(ellipticity=1.5)  # human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300
 
 
@@ -153,7 +155,6 @@ QUICK_SWEEP = AccuracySweep(cantilever_segments=(12, 25, 50), frequency_segments
 
 
 def _simulator(groom, material, **options):
-    from .simulator import Simulator
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice: reported as substeps
         return Simulator(groom, material, **options)
@@ -182,9 +183,8 @@ def _settle(sim, seconds):
 
 
 def _row(case, n, dt, twist, timed, **extra):
-    from .runtime import precision
     sim, wall, _, runs = timed
-    return {"case": case, "segments": n, "dt": dt, "twist": twist, "precision": precision(),
+    return {"case": case, "segments": n, "dt": dt, "twist": twist, "precision": runtime.precision(),
             "wall_s": wall, "runs": runs, "steps": sim.steps_taken, "substeps": sim.substeps, "sim_time": sim.time, **extra}
 
 
@@ -275,7 +275,6 @@ def accuracy_rows(sweep: AccuracySweep, log=None) -> list:
 
 def _in_process(precision: str, arch: str) -> bool:
     """Run `precision` here if Taichi is not initialised yet (then initialise it) or already is so."""
-    from . import runtime
     if not runtime.taichi_is_initialized():
         runtime.init(arch=arch, precision=precision)
         return True
@@ -321,7 +320,6 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
               "timing": f"wall_s: median of {sweep.repeats} timed runs of the stepping (1 if a run "
                         "takes over 2 s) after a warm-up run of the same configuration (compile excluded)"}
     Path(result["json"]).write_text(json.dumps(result, indent=1))
-    from render import write_png
     write_png(result["png"], accuracy_figure(result).image)
     return result
 
@@ -333,7 +331,6 @@ CASE_COLOURS = {("cantilever", "none"): 0, ("frequency", "none"): 2, ("helix", "
 def accuracy_figure(result: dict):
     """Log error vs log wall time: a line per (case, twist, precision) through its segment counts
     (solid float64, dashed float32), and unjoined markers for the time-step sweep."""
-    from render.plot import PALETTE, Series, loglog
     sweep, series = result["sweep"], []
     keys = sorted({(r["case"], r["twist"], r["precision"]) for r in result["rows"]})
     for case, twist, prec in keys:
@@ -414,6 +411,8 @@ def stability_cases(quick: bool) -> list:
               replace(base, name="extreme stiff quasistatic", youngs_modulus=1e10, radius=100e-6,
                       twist="quasistatic", **extreme),
               replace(base, name="extreme soft", youngs_modulus=1e8, radius=20e-6, **extreme),
+              replace(base, name="extreme soft quasistatic", youngs_modulus=1e8, radius=20e-6,
+                      twist="quasistatic", **extreme),
               replace(base, name="strict, dt 0.1 ms", dt=1e-4, strict=True),
               replace(base, name="strict, E 1e10, 2 mm", youngs_modulus=1e10, segment=0.002, strict=True),
               replace(base, name="strict, dt 5 ms", dt=5e-3, strict=True)]
@@ -427,10 +426,6 @@ def stability_cases(quick: bool) -> list:
 
 def _stability_scene(case: StabilityCase):
     """(groom, material, simulator options) of a case."""
-    from .forces import Wind
-    from .groom import Groom
-    from .materials import Material
-    from .motion import Shake
     angle = 2 * np.pi * np.arange(case.n_strands) / case.n_strands
     directions = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
     shape = dict(roots=0.1 * directions, directions=directions, length=case.length,
@@ -480,7 +475,6 @@ def _observe(sim, groom, duration):
 def run_stability_case(case: StabilityCase, duration: float) -> dict:
     """Run one case for `duration` simulated seconds. Refusals: ValueError from the constructor (a
     strict bound, or an input it rejects) and SimulationDiverged; anything else, or a NaN, is FAIL."""
-    from .stability import SimulationDiverged
     row = {**asdict(case), "duration": duration,
            "conservative": case.drag == 0 and not case.shake_hz and not case.wind}
     start = time.perf_counter()
@@ -516,7 +510,6 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
                      log=None) -> dict:
     """Run the matrix (or `cases`) in this process's precision for `duration` simulated seconds
     (0.5 s, quick 0.2 s); write stability.json to out_dir and return the result."""
-    from .runtime import arch, precision
     duration = duration or (0.2 if quick else 0.5)
     rows = []
     for case in cases if cases is not None else stability_cases(quick):
@@ -525,7 +518,7 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
             log(f"{case.name}: {rows[-1]['outcome'][:100]} ({rows[-1]['wall_s']:.1f} s)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    result = {"arch": arch(), "precision": precision(), "duration": duration, "cases": rows,
+    result = {"arch": runtime.arch(), "precision": runtime.precision(), "duration": duration, "cases": rows,
               "failures": sum(r["status"] == "FAIL" for r in rows), "json": str(out / "stability.json")}
     Path(result["json"]).write_text(json.dumps(result, indent=1))
     return result
@@ -567,8 +560,7 @@ def _log(text):
 
 def _accuracy_main(args) -> int:
     if args.worker:
-        from .runtime import init
-        init(arch=args.arch, precision=args.precision)
+        runtime.init(arch=args.arch, precision=args.precision)
         sweep = AccuracySweep(**{k: tuple(v) if isinstance(v, list) else v for k, v in json.loads(args.sweep).items()})
         part = {"rows": accuracy_rows(sweep, _log) if not args.no_rows else [],
                 "reference": helix_reference(sweep) if args.reference else None}
