@@ -15,7 +15,7 @@ def build() -> th.Scene:
         groom=groom, head=head,
         material=th.Material(youngs_modulus=3e9, shear_modulus=1e9, radius=45e-6, ellipticity=1.5),
         motion=th.Shake(amplitude_deg=40, frequency_hz=2.0, pivot=(0.0, -0.01, -0.10), ramp_s=0.3),
-        drag=5e-4, twist="kmoch")
+        drag=5e-4)
 
 
 def shot() -> Shot:

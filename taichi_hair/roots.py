@@ -52,7 +52,8 @@ def _scalp_triangles(head):
     return faces
 
 
-def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float | None = None):
+def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float | None = None,
+                 blue_noise: bool = True):
     """n blue-noise roots on the scalp: points [n, 3] m and unit outward normals [n, 3].
 
     A triangle is scalp when at least two of its vertices are. Candidates (24 per root, at
@@ -60,6 +61,8 @@ def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float 
     start keeps n of them, so every pair is at least the last chosen distance apart and every
     candidate lies within it of a root. Normals interpolate the area-weighted vertex normals.
     min_distance [m]: if given, ValueError when the n roots cannot all be that far apart.
+    blue_noise=False keeps the first n uniform candidates instead: O(n), for the tens of
+    thousands of dense-hair roots, where farthest-point sampling (O(n^2)) is too slow.
     """
     faces = _scalp_triangles(head)
     _check("n", n, "roots", low=1, integer=True)
@@ -69,14 +72,17 @@ def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float 
     rng = np.random.default_rng(seed)
     tri = head.faces[faces]
     areas = head.face_areas()[faces]
-    m = max(CANDIDATES_PER_ROOT * n, MIN_CANDIDATES)
+    m = max(CANDIDATES_PER_ROOT * n, MIN_CANDIDATES) if blue_noise else n
     pick = rng.choice(len(faces), size=m, p=areas / areas.sum())
     r1, r2 = np.sqrt(rng.random(m)), rng.random(m)  # uniform on a triangle
     bary = np.stack([1.0 - r1, r1 * (1.0 - r2), r1 * r2], axis=1)
     corners = head.vertices[tri[pick]]  # [m, 3 corners, 3]
     cand = np.einsum("mc,mck->mk", bary, corners)
-    chosen, spread = _farthest_points(cand, n, int(rng.integers(m)))
-    if min_distance is not None and spread < min_distance:
+    if blue_noise:
+        chosen, spread = _farthest_points(cand, n, int(rng.integers(m)))
+    else:
+        chosen, spread = np.arange(n), 0.0
+    if min_distance is not None and blue_noise and spread < min_distance:
         raise ValueError(f"min_distance = {min_distance!r} m cannot be met by {n} roots on this scalp "
                          f"(blue-noise spacing reached {spread:.4g} m); ask for fewer roots")
     vn = head.vertex_normals()[tri[pick[chosen]]]

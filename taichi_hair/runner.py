@@ -87,7 +87,7 @@ def scalp_interpolator(scene, simulator, n_dense, seed=0):
     roots = groom.positions[:, 0]
     normals = groom.positions[:, 1] - roots
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    dense_roots, _ = sample_scalp(head.model, n_dense, seed=seed + 1)
+    dense_roots, _ = sample_scalp(head.model, n_dense, seed=seed + 1, blue_noise=False)
     cranium = np.ptp(head.model.vertices, axis=0) * np.array([0.5, 0.45, 0.5])
     return Interpolator(roots, normals, dense_roots, groom.max_nodes, mode="blend", blend=0.5,
                         frizz=0.0008, length_variation=0.05, seed=seed,

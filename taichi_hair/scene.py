@@ -128,7 +128,7 @@ class Scene:
     hair_interaction: HairInteraction | None = None
     gravity: tuple = (0.0, 0.0, -9.81)
     drag: float = 5e-4
-    twist: str = "kmoch"
+    twist: str = "quasistatic"
 
     def __post_init__(self):
         if not isinstance(self.groom, Groom):

@@ -15,7 +15,7 @@ from .groom import Groom
 from .progress import ProgressBar
 from .rod import elastic_forces, strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
-from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step
+from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
 from .state import build
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
@@ -23,10 +23,11 @@ from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
 from .state import COUNTERS
 from .twist import TWIST_MODES
-from .step import (StepPlan, advance, kmoch_step, place_roots, project_constraints, run_twist_update,
-                   strand_mechanical_energy)
+from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
+                   run_twist_update, strand_mechanical_energy)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
+INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
 
 
@@ -51,8 +52,10 @@ class Simulator:
         with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
         strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
     wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
-    twist: "kmoch" (Kmoch et al.'s rule, meant for elliptic hair), "quasistatic" (Newton on
-        dE/dtheta = 0 per strand) or "none" (material angles stay as they are).
+    twist: "quasistatic" (default: Newton on dE/dtheta = 0 per strand, the energy-consistent
+        choice), "kmoch" (Kmoch et al.'s rule for elliptic hair: cheaper, but not an energy
+        minimum, so it can feed energy in; see the accuracy and stability reports) or "none"
+        (material angles stay as they are).
     projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
         in float32 the rounding floor of the scene's coordinates if larger, see
         `default_projection_tol`); projection_iterations caps it.
@@ -66,7 +69,7 @@ class Simulator:
     """
 
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
-                 drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "kmoch",
+                 drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "quasistatic",
                  projection_tol: float | None = None, projection_iterations: int = 100,
                  twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
@@ -85,7 +88,6 @@ class Simulator:
                                           _positive("stability_factor", stability_factor, "", upper=2.0))
         self.stable_dt = min([self.stable_dt] + [_grab_bound(self.model, g, stability_factor)
                                                  for g in self.touch if isinstance(g, Grab)])
-        self.substeps = self._substeps_for(strict)
         self.control, facts = build_control(_vector3("gravity", gravity),
                                             wind if isinstance(wind, Wind) else _vector3("wind", wind),
                                             drag, tuple(colliders), self.touch,
@@ -93,6 +95,8 @@ class Simulator:
         if facts["wind"] and drag == 0:
             raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
                              "(human hair in air: about 1e-4 to 1e-3)")
+        self.stable_dt = min(self.stable_dt, wind_bound(groom, _max_air_speed(wind), stability_factor))
+        self.substeps = self._substeps_for(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
             wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
@@ -112,6 +116,11 @@ class Simulator:
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_start(strict, stability_factor)
+        if self.substeps > 1:
+            warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
+                          f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
+                          f"springs and the starting shape): each step runs {self.substeps} substeps of "
+                          f"{self.dt / self.substeps:.3g} s", RuntimeWarning, stacklevel=2)
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
@@ -123,16 +132,15 @@ class Simulator:
         return cls(scene.groom, scene.material, dt=dt, **{**scene.simulator_options(), **options})
 
     def _substeps_for(self, strict: bool) -> int:
+        """Substeps per step so that each is within the bound (the caller warns once), or raise."""
         if self.dt <= self.stable_dt:
             return 1
-        message = (f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
-                   f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag and grab springs)")
         if strict:
-            raise ValueError(message + "; lower dt or pass strict=False to substep automatically")
-        substeps = math.ceil(self.dt / self.stable_dt)
-        warnings.warn(f"{message}: each step runs {substeps} substeps of {self.dt / substeps:.3g} s",
-                      RuntimeWarning, stacklevel=3)
-        return substeps
+            raise ValueError(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
+                             f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, "
+                             f"grab springs and the starting shape); lower dt or pass strict=False to "
+                             f"substep automatically")
+        return math.ceil(self.dt / self.stable_dt)
 
     # ---- head transform -----------------------------------------------------------------
     def _head_at(self, t: float):
@@ -159,11 +167,25 @@ class Simulator:
         load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
         load_tools(c, self.touch, np.full(2, self.time))
         st.x_prev.copy_from(st.x)
-        project_constraints(self.plan.projection_tol, self.plan.projection_iterations, self.plan.n_analytic,
-                            True, self.plan.mesh, self.plan.touch, md.node_count, md.inv_mass,
-                            md.rest_length, c.head, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
-                            c.tools, c.tool_points, st.x, st.x_prev, st.dx, *st.scratch_edge,
-                            st.counters, st.residuals)
+        # A strand groomed into the head may need many more iterations than one step allows;
+        # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
+        for _ in range(INITIAL_PROJECTION_ROUNDS):
+            st.residuals.fill(0.0)
+            project_constraints(self.plan.projection_tol, self.plan.projection_iterations,
+                                self.plan.n_analytic, True, self.plan.mesh, self.plan.touch,
+                                md.node_count, md.inv_mass, md.rest_length, c.head, c.kinds,
+                                c.geometry, c.params, c.sdf, c.sdf_meta, c.tools, c.tool_points,
+                                st.x, st.x_prev, st.dx, *st.scratch_edge, st.counters, st.residuals)
+            residual = st.residuals.to_numpy()[:, 0]
+            if residual.max() <= self.plan.projection_tol:
+                break
+        stuck = np.flatnonzero(~(residual <= FAILED_ABOVE))
+        if len(stuck):
+            warnings.warn(f"{len(stuck)} strand(s) (first: {stuck[0]}) start inside a collider and "
+                          f"could not be moved out with their edge lengths kept (relative residual "
+                          f"{residual[stuck].max():.3g}); check the groom against the head",
+                          RuntimeWarning, stacklevel=3)
+        st.x_prev.copy_from(st.x)
         self._reset_counters()
 
     def _tighten_bound_to_start(self, strict, stability_factor):
@@ -264,10 +286,12 @@ class Simulator:
         self._head_prev = self._head
         self._orient_roots()
         self.update_frames()
-        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed)
+        residual = float(self.state.residuals.to_numpy()[first, 0])
+        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual)
         raise SimulationDiverged(
             f"simulation diverged at step {step} (t = {t:.4g} s): strand {first} "
-            f"({len(bad)} strand(s) in all) went non-finite or faster than {self.control.max_speed:g} m/s; "
+            f"({len(bad)} strand(s) in all) went non-finite, faster than {self.control.max_speed:g} m/s "
+            f"or out of its inextensibility constraints; "
             f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
             step=step, strand=int(first))
 
@@ -482,6 +506,13 @@ def default_projection_tol(groom: Groom) -> float:
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
     return max(1e-6, 16 * float(np.finfo(np.float32).eps) * reach / shortest)
+
+
+def _max_air_speed(wind) -> float:
+    """Fastest air [m/s] a wind can blow: mean * (1 + gust) + three turbulence rms."""
+    if isinstance(wind, Wind):
+        return (float(np.linalg.norm(wind.velocity)) * (1.0 + wind.gust_amplitude) + 3.0 * wind.turbulence)
+    return float(np.linalg.norm(wind))
 
 
 def _default_twist_tol():

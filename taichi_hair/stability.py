@@ -40,8 +40,24 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
     return bound
 
 
-def likely_cause(dt_used: float, bound: float, cap_hits: int, max_speed: float) -> str:
+def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> float:
+    """Air moving at max_air_speed [m/s] can drag nodes along at about that speed; the fast
+    projection of a chain converges only while a step moves nodes well under a segment length,
+    so h < factor * ds / max_air_speed (ds the shortest rest edge). math.inf without wind."""
+    if max_air_speed <= 0:
+        return math.inf
+    shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
+                   for s in range(groom.n_strands))
+    return factor * shortest / max_air_speed
+
+
+def likely_cause(dt_used: float, bound: float, cap_hits: int, max_speed: float,
+                 residual: float = 0.0) -> str:
     """A sentence naming the most likely reason a run diverged."""
+    if residual > 1e-2:
+        return (f"the inextensibility projection could not hold the edges (relative residual "
+                f"{residual:.3g}): forces or motion too strong for a {dt_used:.3g} s step (gale wind, "
+                f"violent head motion, large user force); lower dt")
     if dt_used > bound:
         return (f"the time step {dt_used:.3g} s exceeds the stability bound {bound:.3g} s "
                 f"(strict=False substeps automatically; was the bound overridden?)")

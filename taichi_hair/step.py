@@ -28,6 +28,8 @@ from .state import COUNTERS
 from .twist import strand_twist_kmoch, strand_twist_quasistatic
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
+STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
+FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
 PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD = (COUNTERS[k] for k in (
     "projection_iterations", "projection_cap_hits", "projection_stalls", "twist_iterations", "bad_step"))
 
@@ -133,9 +135,10 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
                    tool_now, tool_prev):
     """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
     edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
-    tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of the
-    residual: the precision's rounding floor). The root edge's nodes have infinite mass.
-    Returns (iterations, final residual)."""
+    tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of a
+    residual already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow
+    progress is the nonlinear start of Gauss-Newton and it keeps going). The root edge's nodes
+    have infinite mass. Returns (iterations, final residual)."""
     n = node_count[s]
     it = 0
     res = 0.0
@@ -156,7 +159,7 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
             diag[s, j] = 4.0 * e.dot(e) * (inv_mass[s, j] + inv_mass[s, j + 1])
             if j + 1 < n - 1:
                 upper[s, j] = -4.0 * inv_mass[s, j + 1] * e.dot(x[s, j + 2] - x[s, j + 1])
-        if res < tol or it >= max_iterations or (it >= 1 and res > 0.9 * previous):
+        if res < tol or it >= max_iterations or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous):
             break
         solve_inextensibility(s, n, inv_mass, x, dx, diag, upper, rhs)
         it += 1
@@ -255,6 +258,8 @@ def advance_strands(
                                      use_mesh, sdf, sdf_meta, touch, tools, tool_points, k + 1, k)
             record_projection(s, counters, residuals, it, res, projection_tol, projection_iterations)
             bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
+            if not (res <= FAILED_ABOVE):
+                bad = 1
             strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
             strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v,
                          kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, scratch_a,
@@ -329,12 +334,16 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
                         tools: Vec4s1, tool_points: Vec3s2, x: Vec3s2, x_prev: Vec3s2, dx: Vec3s2,
                         diag: Scalars2, upper: Scalars2, rhs: Scalars2, counters: Ints2,
                         residuals: Scalars2):
-    """strand_project for every strand (head pose 0 -> 1), recorded. One thread per strand."""
+    """strand_project for every strand (head pose 0 -> 1), recorded; counters[s, BAD] = 0 where
+    the projection failed (residual above FAILED_ABOVE), else -1. One thread per strand."""
     for s in range(x.shape[0]):
         it, res = strand_project(s, tol, max_iterations, node_count, inv_mass, rest_length, x, dx,
                                  diag, upper, rhs, contacts, x_prev, head, 1, 0, n_analytic, kinds,
                                  geometry, params, use_mesh, sdf, sdf_meta, touch, tools, tool_points, 1, 0)
         record_projection(s, counters, residuals, it, res, tol, max_iterations)
+        counters[s, BAD] = -1
+        if not (res <= FAILED_ABOVE):
+            counters[s, BAD] = 0
 
 
 @ti.kernel
@@ -347,7 +356,6 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
                             counters: Ints2, residuals: Scalars2):
     """Velocities from positions (with the blow-up check), frames and the twist update."""
     for s in range(x.shape[0]):
-        counters[s, BAD] = -1
         if strand_velocities(s, inv_h, max_speed, node_count, x, x_prev, v):
             counters[s, BAD] = 0
         strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)

@@ -99,12 +99,12 @@ def test_strict_refusal_names_the_bound(stability):
     assert f"{bound:.3g} s" in row["outcome"] and bound < case.dt
 
 
-@pytest.mark.xfail(strict=True, reason="a 30 m/s gale at dt 1 ms (drag 5e-4) stretches edges: the "
-                                       "projection stalls and no refusal is raised")
 def test_gale_wind_keeps_edges_inextensible():
+    # a 30 m/s gale at dt 1 ms: the wind bound (an air particle crosses at most part of a
+    # segment per substep) substeps it; the row's own check measures the edge strain
     case = next(c for c in reports.stability_cases(quick=True) if c.wind)
     row = reports.run_stability_case(case, 0.1)
-    assert row["status"] != "FAIL", row["outcome"]
+    assert row["status"] in ("stable", "substepped"), row["outcome"]
 
 
 def test_undocumented_exceptions_are_failures(monkeypatch, tmp_path):
