@@ -1,0 +1,73 @@
+"""The cosseratbench plugin: taichi_hair run on cosseratbench's own scenarios and scored by its
+own metrics and references, at low resolution (the `bench` extra installs cosseratbench)."""
+
+import numpy as np
+import pytest
+
+cosseratbench = pytest.importorskip(
+    "cosseratbench", reason="cosseratbench is not installed: pip install -e '.[test,bench]'")
+
+import taichi_hair as th  # noqa: E402
+from cosseratbench import Capability, registry  # noqa: E402
+from cosseratbench.experiment import run  # noqa: E402
+
+from taichi_hair.cosseratbench_plugin import TaichiHairSolver  # noqa: E402
+
+needs_pins = pytest.mark.skipif(not hasattr(th.Simulator, "add_pin"),
+                                reason="needs pins (Simulator.add_pin) for pinned ends")
+
+
+def bench(name, n_elements, **values):
+    result = run(registry.load_experiment(name), TaichiHairSolver(), values=values,
+                 n_elements=n_elements)
+    assert result.outcome == "completed", (result.failure, result.missing)
+    return result
+
+
+def test_registered_with_honest_capabilities():
+    solver = registry.load_solver("taichi_hair")
+    assert isinstance(solver, TaichiHairSolver) and solver.name == "taichi_hair"
+    assert "taichi_hair" in solver.backend_version
+    # inextensible, unshearable, no rod-rod contact
+    for missing in (Capability.STRETCH, Capability.SHEAR, Capability.ROD_CONTACT,
+                    Capability.ROD_FRICTION):
+        assert missing not in solver.capabilities
+
+
+def test_cantilever_against_euler_bernoulli():
+    result = bench("cantilever", 20)
+    # a rigid clamped element of 1/20 of the length: first-order error, as in PyElastica
+    assert result.metrics["tip_deflection_error"] < 0.1
+    assert result.metrics["settling_residual"] < 1e-3
+    assert result.observations["max_strain"] < 1e-5  # inextensible
+    traj = result.trajectory
+    assert traj.positions[0].shape == (101, 21, 3) and traj.directors[0].shape == (101, 20, 3)
+    assert np.allclose(np.linalg.norm(traj.directors[0], axis=2), 1.0)
+    scenario = registry.load_experiment("cantilever").scenario
+    assert np.allclose(traj.directors[0][0], scenario.rods[0].directors(20), atol=1e-9)
+
+
+@needs_pins
+def test_pendulum_swings_without_losing_energy():
+    result = bench("pendulum", 10)
+    # inextensible: the stretched start is shortened to the rest length (strain ~1e-3)
+    assert result.metrics["period_error"] < 0.02
+    assert abs(result.metrics["amplitude_change"]) < 0.05  # no damping added
+
+
+@needs_pins
+def test_catenary_sags_nearly_as_the_elastic_catenary():
+    result = bench("catenary", 20)
+    # an inextensible cable misses the ~1% of sag stretch adds
+    assert result.metrics["sag_error"] < 0.03
+    assert result.metrics["shape_error"] < 0.01
+    assert result.metrics["settling_residual"] < 1e-2
+
+
+def test_unsupported_physics_is_reported_not_faked():
+    # the twist experiment's end slides along the rod: outside taichi_hair's model
+    result = run(registry.load_experiment("twist"), TaichiHairSolver(), n_elements=10)
+    assert result.outcome == "unsupported" and "slides" in result.missing[0]
+    # rods touching rods need ROD_CONTACT, which taichi_hair does not claim
+    result = run(registry.load_experiment("crossing"), TaichiHairSolver(), n_elements=10)
+    assert result.outcome == "unsupported" and "rod_contact" in result.missing
