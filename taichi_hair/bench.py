@@ -179,6 +179,13 @@ def format_table(result: dict) -> str:
 
 
 def main(args) -> int:
+    if args.cosseratbench:  # optional extra: imported only when asked for
+        try:
+            from .cosseratbench_plugin import bench_main
+        except ModuleNotFoundError as err:
+            raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
+                             f"pip install 'taichi_hair[bench]'") from None
+        return bench_main(args)
     strands = [int(s) for s in args.strands.split(",")]
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
     results = []
@@ -214,4 +221,18 @@ def add_parser(sub):
     p.add_argument("--dense", type=int, default=100_000,
                    help="dense strands interpolated per frame on the interpolation row; 0 skips it")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
+                              "columns also pip install \"cosseratbench[pyelastica,mujoco]\")")
+    cb.add_argument("--cosseratbench", action="store_true",
+                    help="run cosseratbench's scenarios for taichi_hair and the other solvers side by "
+                         "side and print every metric and wall time in one table (float64)")
+    cb.add_argument("--experiments", default="", help="comma-separated experiments (default: all)")
+    cb.add_argument("--solvers", default="taichi_hair,pyelastica,mujoco",
+                    help="comma-separated cosseratbench solvers")
+    cb.add_argument("--n-elements", type=int, default=None,
+                    help="elements per rod (default: each experiment's)")
+    cb.add_argument("--out", default="out/cosseratbench",
+                    help="results directory (saved runs are reused while still valid)")
+    cb.add_argument("--jobs", type=int, default=1, help="runs at once (wall times read high above 1)")
+    cb.add_argument("--force", action="store_true", help="rerun saved runs")
     p.set_defaults(func=main)
