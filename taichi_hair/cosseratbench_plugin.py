@@ -148,9 +148,6 @@ class TaichiHairSolver:
         if not (math.isfinite(time_step_scale) and time_step_scale > 0):
             raise ValueError(f"time_step_scale must be > 0, got {time_step_scale!r}")
         self.stability_factor = DEFAULT_STABILITY_FACTOR * time_step_scale
-        if self.stability_factor >= 2.0:
-            raise ValueError(f"time_step_scale must be < {2.0 / DEFAULT_STABILITY_FACTOR:g} "
-                             f"(the explicit step's limit), got {time_step_scale!r}")
 
     # ---- what a run uses -----------------------------------------------------------------
     @staticmethod
@@ -191,6 +188,10 @@ class TaichiHairSolver:
 
     # ---- build and run -------------------------------------------------------------------
     def _build(self, scenario: Scenario, n_elements: int, n_frames: int):
+        if self.stability_factor >= 2.0:
+            raise NotImplementedError(
+                f"a time step {self.stability_factor / DEFAULT_STABILITY_FACTOR:g}x the default: "
+                f"at or past the explicit step's limit, which taichi_hair refuses to run")
         strands = [_Strand(rod, n_elements) for rod in scenario.rods]
         roots = {s.rod.condition(s.root_end) for s in strands}
         if len(roots) > 1:
@@ -202,6 +203,9 @@ class TaichiHairSolver:
         if needs_pins and not hasattr(th.Simulator, "add_pin"):
             raise NotImplementedError("a pinned root or a held tip needs Simulator.add_pin "
                                       "(not in this taichi_hair)")
+        if any(s.rod.condition(s.tip_end) is EndCondition.CLAMPED for s in strands):
+            raise NotImplementedError("a clamped tip: taichi_hair's clip (add_pin clamp=True) holds "
+                                      "the edge's position and direction but leaves its twist free")
         motions = [s for s in strands if s.motion is not None]
         if motions and len(strands) > 1:
             raise NotImplementedError("a driven end with several rods: taichi_hair's head motion "
@@ -229,8 +233,6 @@ class TaichiHairSolver:
             last = len(s.rest_nodes) - 1
             if condition is EndCondition.PINNED:
                 sim.add_pin(k, last, s.scenario_nodes[-1])
-            elif condition is EndCondition.CLAMPED:
-                sim.add_pin(k, last - 1, s.rest_nodes[-2], clamp=True)
         loads = np.zeros((groom.n_strands, groom.max_nodes, 3))
         for k, s in enumerate(strands):
             for load in s.rod.loads:
