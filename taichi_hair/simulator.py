@@ -21,6 +21,7 @@ from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
+from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
 from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
@@ -66,6 +67,13 @@ class Simulator:
     colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
     max_speed [m/s]: a node faster than this counts as a blow-up.
+    root: "clamped" (default: the root edge's two nodes ride on the head, its frame turns with
+        the head) or "pinned" (node 0 rides on the head, node 1 is free: the strand swings
+        freely about its root node. The root edge's reference director is parallel-transported
+        in time from its previous direction each step; its material angle theta^0 stays held in
+        that frame (the twist solve keeps it fixed), so the joint is free in bending and holds
+        spin about the edge: a universal joint, not a ball joint).
+    Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
@@ -73,15 +81,23 @@ class Simulator:
                  projection_tol: float | None = None, projection_iterations: int = 100,
                  twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
-                 max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR):
+                 max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
+                 root: str = "clamped"):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction)
+        if root not in ROOT_MODES:
+            raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
         self.twist_iterations = twist_iterations
         self.model, self.state = build(groom, material)
+        if root == "pinned":  # node 1 joins the free nodes
+            inv_mass = self.model.inv_mass.to_numpy()
+            inv_mass[:, 1] = 1.0 / self.model.mass.to_numpy()[:, 1]
+            self.model.inv_mass.from_numpy(inv_mass)
+        self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
         self.stable_dt = stable_time_step(groom, self.model.materials, drag,
@@ -105,7 +121,7 @@ class Simulator:
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=_positive("twist_tol", _default_twist_tol() if twist_tol is None else twist_tol, ""),
-            twist_iterations=twist_iterations)
+            twist_iterations=twist_iterations, pinned_root=root == "pinned")
         self.time = 0.0
         self.steps_taken = 0
         self._snapshot = None
@@ -151,13 +167,16 @@ class Simulator:
         self._head = self._head_prev = (rotation, translation)
         x = self.groom.positions @ rotation.T + translation
         self.state.x.from_numpy(x.astype(arrays.np_float()))
-        self._orient_roots()
+        self._orient_roots(reference=True)
 
-    def _orient_roots(self):
-        """Root reference frames at the current head pose (root nodes untouched)."""
+    def _orient_roots(self, reference=None):
+        """Head poses loaded; root reference frames at the current head pose (root nodes
+        untouched), unless the root is pinned: its reference is carried in time by the steps
+        (reference=True forces it, for the initial pose)."""
         load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
         st, md = self.state, self.model
-        place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+        if reference or (reference is None and not self.plan.pinned_root):
+            place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
 
     def _resolve_initial_contacts(self):
         """Move groomed nodes that start inside a collider's margin out of it before the first
@@ -172,7 +191,7 @@ class Simulator:
         for _ in range(INITIAL_PROJECTION_ROUNDS):
             st.residuals.fill(0.0)
             project_constraints(self.plan.projection_tol, self.plan.projection_iterations,
-                                self.plan.n_analytic, True, self.plan.mesh, self.plan.touch,
+                                self.plan.n_analytic, True, False, self.plan.mesh, self.plan.touch,
                                 md.node_count, md.inv_mass, md.rest_length, c.head, c.kinds,
                                 c.geometry, c.params, c.sdf, c.sdf_meta, c.tools, c.tool_points,
                                 st.x, st.x_prev, st.dx, *st.scratch_edge, st.counters, st.residuals)
@@ -210,6 +229,35 @@ class Simulator:
         self._orient_roots()
         self.update_frames()
 
+    # ---- pins and clips (taichi_hair/pins.py) -----------------------------------------
+    def add_pin(self, strand, node, target=None, *, clamp: bool = False, attach: str = "world"):
+        """Pin node `node` of strand `strand` to a point (position only; node -1 is the tip).
+        target [3] m: default the node's current position (no jump); in world coordinates
+        (attach="world") or head coordinates (attach="head": the pin rides on the head's rigid
+        transform, like the roots). clamp=True clips the edge (node, node + 1): both nodes held,
+        target the node's position, the edge keeping its current direction (in the world or on
+        the head). Returns the pin's int id. Bulk: strand and node as 1-D sequences of K (node
+        may be one int for all) and target None or [K, 3] add K pins at once and return an int64
+        array of K ids. Held already (root nodes, other pins) or out of range: ValueError."""
+        ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev)
+        return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
+
+    def move_pin(self, pin_id, target) -> None:
+        """New target [3] m (a clip's node position; in the pin's attach coordinates): the node
+        gets there at the end of the next `step` call, moving linearly in time over it. Bulk:
+        pin_id a sequence of K ids and target [K, 3]."""
+        self._pins.move(pin_id, target)
+
+    def release_pin(self, pin_id) -> None:
+        """Free the pin's node(s) from the next step on; they keep their last step's velocity.
+        pin_id: an id or a sequence of ids; an unknown id is a ValueError."""
+        self._pins.release(pin_id)
+
+    def pins(self) -> list[dict]:
+        """The live pins: dicts of id, strand, node, target ([3] m, the latest target in attach
+        coordinates), clamp, attach."""
+        return self._pins.listing()
+
     # ---- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1, timers=None) -> None:
         """Advance n steps of dt (each maybe substepped). On blow-up the state is rolled back to
@@ -219,18 +267,22 @@ class Simulator:
         if not (isinstance(n, int) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         self._take_snapshot()
+        self._pins.upload()
         h = self.dt / self.substeps
-        remaining = n * self.substeps
+        remaining = total = n * self.substeps
         staged = timers is not None or self.interaction is not None
         while remaining > 0:
             count = 1 if staged else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
             self.control.time = self.time
+            # pins move linearly over the whole call (pins.py)
+            pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total)
+                    if self._pins.active else None)
             if staged:
                 kmoch_step(self.model, self.state, self.control, self.plan, h, timers,
-                           self.interaction.stage if self.interaction is not None else None)
+                           self.interaction.stage if self.interaction is not None else None, pins)
             else:
-                advance(self.model, self.state, self.control, self.plan, h, count, moving)
+                advance(self.model, self.state, self.control, self.plan, h, count, moving, pins)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
@@ -238,6 +290,7 @@ class Simulator:
             self._head_prev = self._head
             remaining -= count
         self.steps_taken += n
+        self._pins.settle()
 
     def _load_launch(self, h, count) -> bool:
         """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
@@ -269,7 +322,8 @@ class Simulator:
     def _take_snapshot(self):
         st = self.state
         if self._snapshot is None:
-            self._snapshot = {name: arrays.like(getattr(st, name)) for name in ("x", "v", "theta")}
+            self._snapshot = {name: arrays.like(getattr(st, name))
+                              for name in ("x", "v", "theta", "root_t", "root_u")}
         for name, copy in self._snapshot.items():
             copy.copy_from(getattr(st, name))
         self._snapshot_clock = (self.time, self.steps_taken, self._head)
@@ -304,7 +358,8 @@ class Simulator:
         path = os.fspath(path)
         tmp = path + ".tmp.npz"
         np.savez(tmp, x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
-                 theta=self.state.theta.to_numpy(), time=self.time, steps=self.steps_taken,
+                 theta=self.state.theta.to_numpy(), root_t=self.state.root_t.to_numpy(),
+                 root_u=self.state.root_u.to_numpy(), time=self.time, steps=self.steps_taken,
                  head=_pose(*self._head), head_prev=_pose(*self._head_prev),
                  shape=np.array([self.groom.n_strands, self.groom.max_nodes]))
         os.replace(tmp, path)
@@ -315,6 +370,7 @@ class Simulator:
         try:
             with np.load(path) as data:
                 saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
+                saved.update({k: data[k] for k in ("root_t", "root_u") if k in data})  # older files lack them
         except (OSError, KeyError, ValueError) as err:
             raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
         expected = [self.groom.n_strands, self.groom.max_nodes]
@@ -328,6 +384,9 @@ class Simulator:
         self.time, self.steps_taken = float(saved["time"]), int(saved["steps"])
         self._head = (saved["head"][:3].astype(np.float64), saved["head"][3].astype(np.float64))
         self._head_prev = (saved["head_prev"][:3].astype(np.float64), saved["head_prev"][3].astype(np.float64))
+        for k in ("root_t", "root_u"):
+            if k in saved:
+                getattr(self.state, k).from_numpy(saved[k].astype(arrays.np_float()))
         self._orient_roots()
         self.update_frames()
 
@@ -461,8 +520,8 @@ class Simulator:
     def _mechanical(self):
         """Per-strand kinetic and gravitational energy [S], [S] in joules."""
         st, md = self.state, self.model
-        strand_mechanical_energy(md.node_count, md.mass, md.inv_mass, st.x, st.v, self.control.loads,
-                                 st.strand_scalar, self._potential)
+        strand_mechanical_energy(md.node_count, md.mass, self._pins.free_inv_mass, st.x, st.v,
+                                 self.control.loads, st.strand_scalar, self._potential)
         return st.strand_scalar.to_numpy().astype(np.float64), self._potential.to_numpy().astype(np.float64)
 
     def kinetic_energy(self) -> float:

@@ -23,6 +23,7 @@ from .collisions import strand_collide
 from .forces import air_velocity, grab_force
 from .frames import strand_frames, strand_material_frames, update_frames
 from .linalg import thomas_solve
+from .pins import strand_carry_root_frame, strand_place_pins
 from .rod import elastic_forces, strand_elastic_forces
 from .state import COUNTERS
 from .twist import strand_twist_kmoch, strand_twist_quasistatic
@@ -30,6 +31,11 @@ from .twist import strand_twist_kmoch, strand_twist_quasistatic
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
+# With pins a stretch of strand can be held at both ends; taut and straight, its projection
+# system is singular (more length constraints than the free nodes can move along the line).
+# Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
+# it slows the linear convergence only by a factor HELD_DAMPING per iteration.
+HELD_DAMPING = 1e-6
 PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD = (COUNTERS[k] for k in (
     "projection_iterations", "projection_cap_hits", "projection_stalls", "twist_iterations", "bad_step"))
 
@@ -48,6 +54,7 @@ class StepPlan:
     projection_iterations: int
     twist_tol: float
     twist_iterations: int
+    pinned_root: bool = False  # root="pinned": node 0 on the head, the root edge swings freely
 
     @property
     def contacts(self) -> bool:
@@ -99,13 +106,15 @@ def rotate(head: ti.template(), k, p):
 
 @ti.func
 def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: ti.template(),
-                      root_t: ti.template(), root_u: ti.template()):
+                      root_t: ti.template(), root_u: ti.template(), pinned_root: ti.template()):
     """The clamped root edge rides on head pose k: its two nodes x = R xbar + t, and the
-    reference (t, u) from which the Bishop frames start turns with R."""
-    for node in ti.static(range(2)):
+    reference (t, u) from which the Bishop frames start turns with R. A pinned root places
+    node 0 only; its reference is carried in time instead (pins.strand_carry_root_frame)."""
+    for node in ti.static(range(1 if pinned_root else 2)):
         x[s, node] = rotate(head, k, root_frame[s, node]) + head[k, 3]
-    root_t[s] = rotate(head, k, root_frame[s, 2])
-    root_u[s] = rotate(head, k, root_frame[s, 3])
+    if ti.static(not pinned_root):
+        root_t[s] = rotate(head, k, root_frame[s, 2])
+        root_u[s] = rotate(head, k, root_frame[s, 3])
 
 
 @ti.func
@@ -113,10 +122,10 @@ def solve_inextensibility(s, n, inv_mass: ti.template(), x: ti.template(), dx: t
                           diag: ti.template(), upper: ti.template(), rhs: ti.template()):
     """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
     in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda."""
-    thomas_solve(s, 1, n - 2, diag, upper, rhs)
+    thomas_solve(s, 0, n - 2, diag, upper, rhs)
     for i in range(n):
         dx[s, i] = vec3(0.0)
-    for j in range(1, n - 1):
+    for j in range(n - 1):
         e = x[s, j + 1] - x[s, j]
         dx[s, j] += 2.0 * inv_mass[s, j] * rhs[s, j] * e
         dx[s, j + 1] -= 2.0 * inv_mass[s, j + 1] * rhs[s, j] * e
@@ -125,9 +134,10 @@ def solve_inextensibility(s, n, inv_mass: ti.template(), x: ti.template(), dx: t
 
 
 @ti.func
-def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: ti.template(),
-                   rest_length: ti.template(), x: ti.template(), dx: ti.template(), diag: ti.template(),
-                   upper: ti.template(), rhs: ti.template(), contacts: ti.template(),
+def strand_project(s, tol, max_iterations, pins: ti.template(), node_count: ti.template(),
+                   inv_mass: ti.template(), rest_length: ti.template(), x: ti.template(),
+                   dx: ti.template(), diag: ti.template(), upper: ti.template(), rhs: ti.template(),
+                   contacts: ti.template(),
                    x_prev: ti.template(), head: ti.template(), now, prev, n_analytic,
                    kinds: ti.template(), geometry: ti.template(), params: ti.template(),
                    use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
@@ -137,8 +147,11 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
     edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
     tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of a
     residual already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow
-    progress is the nonlinear start of Gauss-Newton and it keeps going). The root edge's nodes
-    have infinite mass. Returns (iterations, final residual)."""
+    progress is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root,
+    pins) have infinite mass (inv_mass 0); an edge with both nodes held (the clamped root edge, a
+    clip) is prescribed: its row is the identity with a zero right-hand side, outside the
+    residual; with pins the diagonal is damped (HELD_DAMPING). Returns (iterations, final
+    residual)."""
     n = node_count[s]
     it = 0
     res = 0.0
@@ -150,13 +163,19 @@ def strand_project(s, tol, max_iterations, node_count: ti.template(), inv_mass: 
                            tool_now, tool_prev)
         previous = res
         res = 0.0
-        for j in range(1, n - 1):
+        for j in range(n - 1):
             e = x[s, j + 1] - x[s, j]
-            l2 = rest_length[s, j] * rest_length[s, j]
-            c = e.dot(e) - l2
-            res = ti.max(res, ti.abs(c) / l2)
-            rhs[s, j] = c
-            diag[s, j] = 4.0 * e.dot(e) * (inv_mass[s, j] + inv_mass[s, j + 1])
+            w = inv_mass[s, j] + inv_mass[s, j + 1]
+            rhs[s, j] = 0.0
+            diag[s, j] = 1.0
+            if w > 0.0:
+                l2 = rest_length[s, j] * rest_length[s, j]
+                c = e.dot(e) - l2
+                res = ti.max(res, ti.abs(c) / l2)
+                rhs[s, j] = c
+                diag[s, j] = 4.0 * e.dot(e) * w
+                if ti.static(pins):
+                    diag[s, j] *= 1.0 + HELD_DAMPING
             if j + 1 < n - 1:
                 upper[s, j] = -4.0 * inv_mass[s, j + 1] * e.dot(x[s, j + 2] - x[s, j + 1])
         if res < tol or it >= max_iterations or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous):
@@ -221,7 +240,8 @@ def advance_strands(
         projection_iterations: int, twist_tol: float, twist_iterations: int, n_analytic: int,
         external: ti.template(), wind_field: ti.template(), twist_mode: ti.template(),
         user: ti.template(), moving_head: ti.template(), contacts: ti.template(),
-        use_mesh: ti.template(), touch: ti.template(),
+        use_mesh: ti.template(), touch: ti.template(), pins: ti.template(), pinned_root: ti.template(),
+        pin_f0: float, pin_df: float, pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2,
         node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, rest_length: Scalars2,
         voronoi: Scalars2, stiffness: Vec4s1, rest_kappa: Vec4s2, rest_twist: Scalars2,
         root_frame: Vec3s2, head: Vec3s2, loads: Vec3s1, gusts: Vec3s1, modes: Vec3s2,
@@ -232,8 +252,10 @@ def advance_strands(
         root_u: Vec3s1, scratch_a: Scalars2, scratch_b: Scalars2, scratch_c: Scalars2,
         counters: Ints2, residuals: Scalars2):
     """n_steps steps of h [s] from time t0 for every strand (head poses as in the module doc;
-    tool_points[k] are the tools at the start of step k, always per step). counters[s, BAD] = the first step where strand s went
-    non-finite or too fast (that strand stops there), -1 if none. One thread per strand."""
+    tool_points[k] are the tools at the start of step k, always per step; pinned nodes at
+    pin_f0 + (k + 1) pin_df of the way from pin_start to pin_end after step k). counters[s, BAD] =
+    the first step where strand s went non-finite or too fast (that strand stops there), -1 if
+    none. One thread per strand."""
     for s in range(x.shape[0]):
         counters[s, BAD] = -1
         for k in range(n_steps):
@@ -251,9 +273,12 @@ def advance_strands(
             if ti.static(user):
                 strand_add_forces(s, node_count, user_force, force)
             strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
-            strand_place_root(s, head, now, root_frame, x, root_t, root_u)
-            it, res = strand_project(s, projection_tol, projection_iterations, node_count, inv_mass,
-                                     rest_length, x, dx, scratch_a, scratch_b, scratch_c, contacts,
+            strand_place_root(s, head, now, root_frame, x, root_t, root_u, pinned_root)
+            if ti.static(pins):
+                strand_place_pins(s, ti.min(1.0, pin_f0 + (k + 1) * pin_df), node_count, pin_mode,
+                                  pin_start, pin_end, head, now, x)
+            it, res = strand_project(s, projection_tol, projection_iterations, pins, node_count,
+                                     inv_mass, rest_length, x, dx, scratch_a, scratch_b, scratch_c, contacts,
                                      x_prev, head, now, prev, n_analytic, kinds, geometry, params,
                                      use_mesh, sdf, sdf_meta, touch, tools, tool_points, k + 1, k)
             record_projection(s, counters, residuals, it, res, projection_tol, projection_iterations)
@@ -261,6 +286,8 @@ def advance_strands(
             if not (res <= FAILED_ABOVE):
                 bad = 1
             strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+            if ti.static(pinned_root):
+                strand_carry_root_frame(s, x, bishop_u, root_t, root_u)
             strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v,
                          kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, scratch_a,
                          scratch_b, scratch_c, counters, residuals)
@@ -275,7 +302,8 @@ def compiled_variants() -> list[dict]:
     template-instance table."""
     mapper = advance_strands._primal.mapper
     names = [a.name for a in mapper.arguments]
-    flags = ("external", "wind_field", "twist_mode", "user", "moving_head", "contacts", "use_mesh", "touch")
+    flags = ("external", "wind_field", "twist_mode", "user", "moving_head", "contacts", "use_mesh", "touch",
+             "pins", "pinned_root")
     return [{f: key[names.index(f)] for f in flags} for key in mapper.mapping]
 
 
@@ -285,15 +313,28 @@ def _common_args(model, state, control, plan: StepPlan):
             md.rest_kappa, md.rest_twist, md.root_frame)
 
 
-def advance(model, state, control, plan: StepPlan, h: float, n_steps: int, moving_head: bool) -> None:
-    """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step."""
+def _pin_args(state, pins):
+    """(pins flag, f0, df, mode, start, end): the pin arrays of `pins` = (mode, start, end, f0,
+    df), or unused placeholders when no pin is held."""
+    if pins is None:
+        return (False, 0.0, 0.0, state.counters, state.dx, state.dx)
+    mode, start, end, f0, df = pins
+    return (True, f0, df, mode, start, end)
+
+
+def advance(model, state, control, plan: StepPlan, h: float, n_steps: int, moving_head: bool,
+            pins=None) -> None:
+    """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
+    pins: None, or (pin_mode, pin_start, pin_end, f0, df): after step k pinned nodes are
+    min(1, f0 + (k + 1) df) of the way from start to end (see pins.py)."""
     st, c = state, control
     user = c.user_force is not None
+    use_pins, f0, df, *pin_arrays = _pin_args(state, pins)
     advance_strands(
         n_steps, h, c.time, c.drag, c.max_speed, plan.projection_tol, plan.projection_iterations,
         plan.twist_tol, plan.twist_iterations, plan.n_analytic,
         plan.external_forces, plan.wind_field, TWIST_CODES[plan.twist], user, moving_head,
-        plan.contacts, plan.mesh, plan.touch,
+        plan.contacts, plan.mesh, plan.touch, use_pins, plan.pinned_root, f0, df, *pin_arrays,
         *_common_args(model, state, control, plan), c.head, c.loads, c.gusts, c.modes,
         c.user_force if user else st.force, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
         c.tools, c.tool_points, st.x, st.v, st.x_prev, st.dx, st.force, st.theta, st.bishop_u,
@@ -318,17 +359,23 @@ def external_and_user_forces(t: float, drag: float, external: ti.template(), win
 
 
 @ti.kernel
-def integrate(h: float, node_count: Ints1, inv_mass: Scalars2, force: Vec3s2, head: Vec3s2,
-              root_frame: Vec3s2, v: Vec3s2, x: Vec3s2, x_prev: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
-    """Symplectic Euler, then the root edges onto head pose 1. One thread per strand."""
+def integrate(h: float, pins: ti.template(), pinned_root: ti.template(), pin_f0: float, pin_df: float,
+              pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2, node_count: Ints1,
+              inv_mass: Scalars2, force: Vec3s2, head: Vec3s2, root_frame: Vec3s2, v: Vec3s2, x: Vec3s2,
+              x_prev: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
+    """Symplectic Euler, then the root edges onto head pose 1 and pinned nodes pin_f0 + pin_df
+    of the way to their end targets. One thread per strand."""
     for s in range(x.shape[0]):
         strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
-        strand_place_root(s, head, 1, root_frame, x, root_t, root_u)
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, pinned_root)
+        if ti.static(pins):
+            strand_place_pins(s, ti.min(1.0, pin_f0 + pin_df), node_count, pin_mode, pin_start,
+                              pin_end, head, 1, x)
 
 
 @ti.kernel
 def project_constraints(tol: float, max_iterations: int, n_analytic: int, contacts: ti.template(),
-                        use_mesh: ti.template(), touch: ti.template(), node_count: Ints1,
+                        pins: ti.template(), use_mesh: ti.template(), touch: ti.template(), node_count: Ints1,
                         inv_mass: Scalars2, rest_length: Scalars2, head: Vec3s2, kinds: Ints1,
                         geometry: Vec3s2, params: Vec4s1, sdf: Scalars3, sdf_meta: Vec3s1,
                         tools: Vec4s1, tool_points: Vec3s2, x: Vec3s2, x_prev: Vec3s2, dx: Vec3s2,
@@ -337,7 +384,7 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
     """strand_project for every strand (head pose 0 -> 1), recorded; counters[s, BAD] = 0 where
     the projection failed (residual above FAILED_ABOVE), else -1. One thread per strand."""
     for s in range(x.shape[0]):
-        it, res = strand_project(s, tol, max_iterations, node_count, inv_mass, rest_length, x, dx,
+        it, res = strand_project(s, tol, max_iterations, pins, node_count, inv_mass, rest_length, x, dx,
                                  diag, upper, rhs, contacts, x_prev, head, 1, 0, n_analytic, kinds,
                                  geometry, params, use_mesh, sdf, sdf_meta, touch, tools, tool_points, 1, 0)
         record_projection(s, counters, residuals, it, res, tol, max_iterations)
@@ -348,7 +395,8 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
 
 @ti.kernel
 def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, twist_iterations: int,
-                            twist_mode: ti.template(), node_count: Ints1, x: Vec3s2, x_prev: Vec3s2,
+                            twist_mode: ti.template(), pinned_root: ti.template(), node_count: Ints1,
+                            x: Vec3s2, x_prev: Vec3s2,
                             v: Vec3s2, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
                             bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2,
                             rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2,
@@ -359,6 +407,8 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
         if strand_velocities(s, inv_h, max_speed, node_count, x, x_prev, v):
             counters[s, BAD] = 0
         strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+        if ti.static(pinned_root):
+            strand_carry_root_frame(s, x, bishop_u, root_t, root_u)
         strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v, kb,
                      theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a, b, c, counters,
                      residuals)
@@ -368,11 +418,13 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
 def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
     """Root nodes and root reference frames at head pose 1. One thread per strand."""
     for s in range(x.shape[0]):
-        strand_place_root(s, head, 1, root_frame, x, root_t, root_u)
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, False)
 
 
-def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, interaction=None) -> None:
-    """One step of h with one kernel per stage (head poses [prev, now] in control.head).
+def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, interaction=None,
+               pins=None) -> None:
+    """One step of h with one kernel per stage (head poses [prev, now] in control.head; pins as
+    in `advance`, for this one step).
     `timers(name)` gives a context manager timing each stage (it must synchronise);
     `interaction(model, state, control, h)` adds hair-hair forces and velocity smoothing."""
     md, st, c = model, state, control
@@ -390,19 +442,20 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
         with stage("hair-hair"):
             interaction(model, state, control, h)
     with stage("integration"):
-        integrate(h, md.node_count, md.inv_mass, st.force, c.head, md.root_frame, st.v, st.x,
-                  st.x_prev, st.root_t, st.root_u)
+        use_pins, f0, df, *pin_arrays = _pin_args(st, pins)
+        integrate(h, use_pins, plan.pinned_root, f0, df, *pin_arrays, md.node_count, md.inv_mass,
+                  st.force, c.head, md.root_frame, st.v, st.x, st.x_prev, st.root_t, st.root_u)
     with stage("projection"):
         project_constraints(plan.projection_tol, plan.projection_iterations, plan.n_analytic,
-                            plan.contacts, plan.mesh, plan.touch, md.node_count, md.inv_mass,
+                            plan.contacts, use_pins, plan.mesh, plan.touch, md.node_count, md.inv_mass,
                             md.rest_length, c.head, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
                             c.tools, c.tool_points, st.x, st.x_prev, st.dx, *st.scratch_edge,
                             st.counters, st.residuals)
     with stage("frames + twist"):
         velocities_frames_twist(1.0 / h, c.max_speed, plan.twist_tol, plan.twist_iterations,
-                                TWIST_CODES[plan.twist], md.node_count, st.x, st.x_prev, st.v,
-                                st.root_t, st.root_u, st.theta, st.bishop_u, st.bishop_v, st.m1,
-                                st.m2, st.kb, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
+                                TWIST_CODES[plan.twist], plan.pinned_root, md.node_count, st.x,
+                                st.x_prev, st.v, st.root_t, st.root_u, st.theta, st.bishop_u,
+                                st.bishop_v, st.m1, st.m2, st.kb, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
                                 *st.scratch_edge, st.counters, st.residuals)
 
 
