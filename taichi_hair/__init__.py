@@ -4,7 +4,8 @@ Public API (see README.md):
     th.init(arch="cpu", precision="float32")
     th.Groom.from_polylines / straight / wavy / curly
     th.Material(youngs_modulus=..., shear_modulus=..., radius=..., density=..., ellipticity=1.0)
-    th.Simulator(groom, material, twist="kmoch"), th.Simulator.from_scene(scene, dt=...)
+    th.Simulator(groom, material, twist="quasistatic"), th.Simulator.from_scene(scene, dt=...)
+    th.sag_free(groom, material, gravity, head) -> (groom, SagFreeReport)
     th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
 """
 
@@ -21,6 +22,7 @@ from .sdf import SignedDistanceGrid
 from .interaction import HairInteraction
 from .materials import Material
 from .runtime import init
+from .sagfree import SagFreeReport, sag_free
 from .scene import Head, Scene
 from .simulator import Simulator
 from .stability import SimulationDiverged
@@ -31,4 +33,4 @@ __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scen
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",
            "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
            "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",
-           "pick_guides", "animate_style"]
+           "pick_guides", "animate_style", "sag_free", "SagFreeReport"]

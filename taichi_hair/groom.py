@@ -26,11 +26,15 @@ class Groom:
         wbar_i^i) [1] of each node; None (the default) measures them on `positions`, so the
         groomed shape is the unloaded shape. Set by `taichi_hair.sag_free`, which chooses them so
         that the groomed shape is the shape at rest under gravity.
+    rest_twist: optional float64 [S, N], the rest twist [rad] of each interior node (the turn of
+        the material frame against the Bishop frame from edge i-1 to edge i; entries 0 and N-1
+        unused); None measures it on `positions`. Set by `sag_free` for twist="quasistatic".
     """
 
     positions: np.ndarray
     node_counts: np.ndarray
     rest_curvature: np.ndarray | None = None
+    rest_twist: np.ndarray | None = None
 
     def __post_init__(self):
         _validate(self.positions, self.node_counts)
@@ -39,10 +43,17 @@ class Groom:
             if rc.shape != self.positions.shape[:2] + (4,) or not np.all(np.isfinite(rc)):
                 raise ValueError(f"rest_curvature must be finite with shape {list(self.positions.shape[:2]) + [4]}, "
                                  f"got {list(rc.shape)}")
+        if self.rest_twist is not None:
+            rt = np.asarray(self.rest_twist)
+            if rt.shape != self.positions.shape[:2] or not np.all(np.isfinite(rt)):
+                raise ValueError(f"rest_twist must be finite with shape {list(self.positions.shape[:2])}, "
+                                 f"got {list(rt.shape)}")
 
-    def with_rest_curvature(self, rest_curvature) -> "Groom":
-        """The same groom with explicit rest material curvatures [S, N, 4] (see rest_curvature)."""
-        return Groom(self.positions, self.node_counts, np.asarray(rest_curvature, dtype=np.float64))
+    def with_rest_curvature(self, rest_curvature, rest_twist=None) -> "Groom":
+        """The same groom with explicit rest material curvatures [S, N, 4] (see rest_curvature)
+        and, optionally, rest twist [S, N] rad (see rest_twist)."""
+        return Groom(self.positions, self.node_counts, np.asarray(rest_curvature, dtype=np.float64),
+                     None if rest_twist is None else np.asarray(rest_twist, dtype=np.float64))
 
     @property
     def n_strands(self) -> int:

@@ -599,10 +599,12 @@ def _add_commands(sub):
     stab.add_argument("--arch", default="cpu")
     stab.add_argument("--json", action="store_true", help="print JSON instead of the table")
     stab.set_defaults(func=_stability_main)
+    from .sagfree import add_report_parser
+    add_report_parser(sub)
 
 
 def add_parsers(sub) -> None:
-    """Add `report accuracy` and `report stability` to an argparse subparsers object."""
+    """Add `report accuracy`, `report stability` and `report sagfree` to an argparse subparsers object."""
     report = sub.add_parser("report", help="accuracy (error vs run time) and stability reports")
     _add_commands(report.add_subparsers(dest="report", required=True))
 

@@ -189,6 +189,8 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
         rest_kappa.from_numpy(np.asarray(groom.rest_curvature).astype(arrays.np_float()))
     rest_twist = np.zeros((groom.n_strands, groom.max_nodes))
     rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
+    if groom.rest_twist is not None:  # a sag-free rest shape holds the groomed angles in balance
+        rest_twist = np.asarray(groom.rest_twist, dtype=np.float64)
     stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["linear_density"]], axis=1)
     model = RodModel(
         groom=groom, materials=tuple(materials), node_count=node_count,
