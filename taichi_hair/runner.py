@@ -63,7 +63,9 @@ class Shot:
 
 def load_scene_module(path):
     """Import a scene script (a file with build() -> Scene, optionally shot() -> Shot,
-    interpolator(scene, simulator) -> Interpolator and PRECISION = "float32" / "float64")."""
+    interpolator(scene, simulator) -> Interpolator, setup(scene, simulator) (called once the
+    simulator exists, before a resumed run loads its checkpoint: e.g. to add pins, which
+    checkpoints do not hold) and PRECISION = "float32" / "float64")."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"scene script {path} does not exist")
@@ -138,6 +140,8 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     out = Path(out_dir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     sim = Simulator.from_scene(scene, dt=shot.dt)
+    if callable(getattr(module, "setup", None)):
+        module.setup(scene, sim)
     interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))
               else scalp_interpolator(scene, sim, shot.dense_strands))
     writer = FrameWriter(shot, scene)
