@@ -65,6 +65,20 @@ def _version(package: str) -> str:
         return "unknown"
 
 
+def _source_digest() -> str:
+    """A short digest of taichi_hair's own sources (this adapter apart: cosseratbench digests it),
+    so that saved runs are not reused after the simulator changes within one version number."""
+    import hashlib
+    from pathlib import Path
+
+    here = Path(__file__).resolve()
+    digest = hashlib.sha256()
+    for path in sorted(here.parent.glob("*.py")):
+        if path != here:
+            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
 def _ensure_taichi() -> str:
     """Initialise Taichi (CPU, float64) unless taichi_hair already did; returns the precision.
     A process whose Taichi was initialised by someone else cannot be used (its precision is
@@ -138,7 +152,8 @@ class TaichiHairSolver:
     cosseratbench solver. See the module docstring for the mapping."""
 
     name = "taichi_hair"
-    backend_version = f"taichi_hair {_version('taichi_hair')}, taichi {_version('taichi')}"
+    backend_version = (f"taichi_hair {_version('taichi_hair')} (sources {_source_digest()}), "
+                       f"taichi {_version('taichi')}")
     # Inextensible and unshearable: no STRETCH, no SHEAR. No rod-rod or self contact
     # (HairInteraction is a volumetric density/velocity model, rods still pass through each
     # other), so neither ROD_CONTACT nor ROD_FRICTION. Obstacles: Plane and Capsule colliders.
