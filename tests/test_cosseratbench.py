@@ -76,3 +76,6 @@ def test_unsupported_physics_is_reported_not_faked():
     # rods touching rods need ROD_CONTACT, which taichi_hair does not claim
     result = run(registry.load_experiment("crossing"), TaichiHairSolver(), n_elements=10)
     assert result.outcome == "unsupported" and "rod_contact" in result.missing
+    # cosseratbench's time_step_scale sweep goes to 4x: past the explicit limit taichi_hair refuses
+    result = run(registry.load_experiment("cantilever"), TaichiHairSolver(4.0), n_elements=10)
+    assert result.outcome == "unsupported" and "explicit step's limit" in result.missing[0]
