@@ -32,6 +32,7 @@ import taichi as ti
 
 from . import arrays
 from .collisions import from_head
+from .frames import parallel_transport
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
@@ -54,13 +55,16 @@ def strand_place_pins(s, fraction, node_count: ti.template(), pin_mode: ti.templ
 
 
 @ti.func
-def strand_carry_root_frame(s, x: ti.template(), bishop_u: ti.template(), root_t: ti.template(),
-                            root_u: ti.template()):
-    """Pinned root: the root edge's reference (t, u) becomes its current tangent and Bishop
-    vector, so the next step's frames start from u^0 parallel-transported in time from the
-    edge's previous direction (DER's free first edge)."""
-    root_t[s] = (x[s, 1] - x[s, 0]).normalized()
-    root_u[s] = bishop_u[s, 0]
+def strand_carry_root_frame(s, x: ti.template(), root_t: ti.template(), root_u: ti.template()):
+    """Pinned root: the root edge's reference (t, u) becomes its current tangent and its Bishop
+    vector u^0, parallel-transported in time from the edge's previous direction (DER's free
+    first edge), with the same operations as frames.strand_frames, so u^0 is unchanged. (It is
+    recomputed, not read back from bishop_u[s, 0]: inside the fused kernel's step loop Taichi
+    1.7 served that read from a value cached before the frames stage wrote it.)"""
+    t = (x[s, 1] - x[s, 0]).normalized()
+    u = parallel_transport(root_u[s], root_t[s], t)
+    root_u[s] = (u - u.dot(t) * t).normalized()
+    root_t[s] = t
 
 
 def _index(name, value, upper):
@@ -77,8 +81,8 @@ def _targets(name, value, count):
     if t.shape == (3,):
         t = np.broadcast_to(t, (count, 3))
     if t.shape != (count, 3):
-        raise ValueError(f"{name} must be a 3-vector in metres{' or [%d, 3]' % count if count > 1 else ''}, "
-                         f"got shape {list(t.shape)}")
+        shapes = "[3]" if count == 1 else f"[3] or [{count}, 3]"
+        raise ValueError(f"{name} must be a 3-vector in metres, shape {shapes}, got shape {list(t.shape)}")
     if not np.all(np.isfinite(t)):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return np.array(t)

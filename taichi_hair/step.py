@@ -287,7 +287,7 @@ def advance_strands(
                 bad = 1
             strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
             if ti.static(pinned_root):
-                strand_carry_root_frame(s, x, bishop_u, root_t, root_u)
+                strand_carry_root_frame(s, x, root_t, root_u)
             strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v,
                          kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, scratch_a,
                          scratch_b, scratch_c, counters, residuals)
@@ -408,7 +408,7 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
             counters[s, BAD] = 0
         strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
         if ti.static(pinned_root):
-            strand_carry_root_frame(s, x, bishop_u, root_t, root_u)
+            strand_carry_root_frame(s, x, root_t, root_u)
         strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v, kb,
                      theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a, b, c, counters,
                      residuals)
