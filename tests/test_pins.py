@@ -326,3 +326,33 @@ def test_staged_and_fused_steps_agree_with_pins_and_a_pinned_root():
         assert pid == 0
     for fused, staged in zip(*runs):  # positions, material frames, the carried root reference
         assert np.abs(fused - staged).max() < 1e-12
+
+
+def test_pinned_root_reference_is_parallel_transported_in_time():
+    """Drive the pinned root edge once round a cone of half-angle alpha (node 1 held by a
+    moving pin): a reference director parallel-transported in time comes back turned about the
+    edge by the cone's solid angle 2 pi (1 - cos alpha) (the holonomy); one that turned with a
+    frame attached to the motion, or lagged a step, would not."""
+    alpha, steps = np.radians(30.0), 720
+    sim = th.Simulator(hanging(11, length=0.2), th.Material(), dt=1e-3, root="pinned",
+                       gravity=(0, 0, 0))
+    link = sim.model.rest_length.to_numpy()[0, 0]
+
+    def direction(phi):
+        return np.array([np.sin(alpha) * np.cos(phi), np.sin(alpha) * np.sin(phi), -np.cos(alpha)])
+    x = sim.positions()
+    x[0] = np.arange(11)[:, None] * link * direction(0.0)
+    sim.set_positions(x)
+    sim.step(1)  # the reference now follows the tilted edge
+    u_start = sim.state.root_u.to_numpy()[0].astype(np.float64)
+    pid = sim.add_pin(0, 1)
+    for k in range(1, steps + 1):
+        sim.move_pin(pid, link * direction(2 * np.pi * k / steps))
+        sim.step(1)
+    t = direction(0.0)
+    u_end = sim.state.root_u.to_numpy()[0].astype(np.float64)
+    turned = np.arctan2(np.cross(u_start, u_end) @ t, u_start @ u_end)
+    holonomy = 2 * np.pi * (1 - np.cos(alpha))
+    print(f"\nroot reference turned {turned:.5f} rad about the edge; holonomy {holonomy:.5f} rad")
+    assert np.allclose(sim.positions()[0, 1], link * t, atol=1e-12)
+    assert abs(abs(turned) - holonomy) < 1e-3
