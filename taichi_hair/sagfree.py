@@ -58,10 +58,14 @@ import numpy as np
 from .groom import Groom
 from .materials import Material, per_strand_materials, stiffness_table
 from .scene import ColliderUnion, Head
+from .runtime import precision
 from .twist import TWIST_MODES
 
 CLAMPED_NODES = 2  # the root edge's two nodes ride on the head
 ANGLE_TOLERANCE = 1e-7  # [rad]: the twist update no longer moves the angles
+# a smallest eigenvalue below -this x (nodal weight / segment length) is a saddle, not a minimum
+# (the scale gravity's destabilising stiffness has); float32 force differences are noisier
+SADDLE_TOLERANCE = {"float64": 1e-3, "float32": 1e-2}
 
 
 @dataclass(frozen=True)
@@ -74,13 +78,17 @@ class SagFreeReport:
     rest_change [1]: max |wbar - wbar0| over the strand's nodes (wbar0: the groom's own).
     max_turning_deg [deg]: the largest rest turning angle 2 atan(|wbar| / 2) the solution implies.
     clipped: the rest curvature was clipped to max_turning_deg somewhere on the strand.
-    reachable: not clipped, torsion_stable and relative_residual <= max_relative_residual (True
+    reachable: not clipped, not fell_back and relative_residual <= max_relative_residual (True
         for strands not solved).
     contact_nodes: free nodes within the head's margin (+ contact_tolerance) at the groomed pose.
     contact_force [N]: sum of the normal contact forces the balance used.
     torsion_stable: for twist="quasistatic", d^2E/dtheta^2 over the free edges is positive
         definite at the balance (else the angles roll away from it: the strand turns its rest
         curl downward and falls; simulate such a groom with twist="none"); True otherwise.
+    shape_stable: the balance is a minimum of the energy over the positions (angles held), on
+        the motions that keep edge lengths and contacts; a saddle is left at once.
+    fell_back: the balance was found but is a saddle (not torsion_stable or not shape_stable):
+        the strand keeps its groomed rest shape (it sags as without sag_free).
     solved: the strand was made sag-free (`strands`); the others keep their groomed rest shape,
         and their residual measures how far from balance that leaves them.
     twist: the twist mode solved for; iterations: balance/twist rounds run; converged: the
@@ -97,6 +105,8 @@ class SagFreeReport:
     contact_nodes: np.ndarray
     contact_force: np.ndarray
     torsion_stable: np.ndarray
+    shape_stable: np.ndarray
+    fell_back: np.ndarray
     solved: np.ndarray
     twist: str
     iterations: int
@@ -109,23 +119,28 @@ class SagFreeReport:
 
     def summary(self) -> str:
         """One paragraph for a log."""
-        s, rel = int(self.solved.sum()), self.relative_residual[self.solved]
+        s = int(self.solved.sum())
         if s == 0:
             return "sag-free rest shape for 0 strands (none chosen)"
+        held = self.solved & ~self.fell_back
+        rel = self.relative_residual[held] if held.any() else np.full(1, np.nan)
         return (f"sag-free rest shape for {s} strands in {self.seconds:.2f} s "
                 f"({1e3 * self.seconds / s:.2f} ms per strand; twist {self.twist!r}, "
                 f"{self.iterations} round(s), {'converged' if self.converged else 'NOT converged'}): "
-                f"residual max {rel.max():.2e} of strand weight "
-                f"(median {np.median(rel):.2e}); largest rest turning angle "
-                f"{self.max_turning_deg[self.solved].max():.1f} deg; {int(self.clipped.sum())} strand(s) clipped, "
-                f"{int(np.count_nonzero(~self.torsion_stable))} torsionally unstable, "
+                f"residual max {rel.max():.2e} of strand weight (median {np.median(rel):.2e}) "
+                f"over the {int(held.sum())} held; largest rest turning angle "
+                f"{self.max_turning_deg[held].max() if held.any() else 0.0:.1f} deg; "
+                f"{int(self.clipped.sum())} strand(s) clipped, "
+                f"{int(np.count_nonzero(self.fell_back))} kept as groomed (balance a saddle: "
+                f"{int(np.count_nonzero(~self.torsion_stable))} in twist, "
+                f"{int(np.count_nonzero(~self.shape_stable))} in shape), "
                 f"{self.n_unreachable} unreachable; {int(self.contact_nodes.sum())} contact node(s).")
 
 
 def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | None = None, *,
              twist: str = "quasistatic", regularization: float = 1e-5, max_turning_deg: float = 90.0,
              max_relative_residual: float = 0.01, contact_tolerance: float = 5e-4,
-             iterations: int = 6, strands=None) -> tuple[Groom, SagFreeReport]:
+             iterations: int = 6, strands=None, keep_saddles: bool = False) -> tuple[Groom, SagFreeReport]:
     """Rest curvatures that hold `groom` in place under `gravity` [m/s^2].
 
     Returns (groom with `rest_curvature` set, SagFreeReport). The new groom has the same
@@ -139,7 +154,9 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
     (0, 180). max_relative_residual: the residual (over strand weight) above which a strand is
     reported unreachable. iterations: the most balance/twist-update rounds. strands: indices
     (or a boolean mask [S]) of the strands to make sag-free; the others keep the rest shape
-    measured on their groomed positions (default: all).
+    measured on their groomed positions (default: all). keep_saddles: return the balancing
+    rest shape even where the balance is a saddle (report.fell_back stays all False; for
+    inspection: such a strand leaves the groomed pose at once).
 
     Simulate the result with the same twist mode. For round or nearly round hair twist="none"
     is the robust choice: under "quasistatic" the angles are free to roll, and a strand whose
@@ -181,13 +198,24 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
         rest_twist = _balance_twist(groom, sim)
         rest_twist[~chosen] = twist0[~chosen]
         sim.model.rest_twist.from_numpy(rest_twist.astype(sim.model.rest_twist.to_numpy().dtype))
-    stable = (_twist_hessian_min(groom, sim) > 0.0 if twist == "quasistatic"
-              else np.ones(groom.n_strands, dtype=bool))
+    torsion = (_twist_hessian_min(groom, sim) > 0.0 if twist == "quasistatic"
+               else np.ones(groom.n_strands, dtype=bool))
     with single_threaded_blas():
-        residual, weight, contact_force = _verify(groom, sim, g, problem.contacts)
-    report = _report(groom, wbar, wbar0, clipped, stable & chosen | ~chosen, chosen, residual, weight, contact_force,
-                     problem.contacts, max_relative_residual, twist, rounds, converged,
-                     time.perf_counter() - started)
+        _, _, _, multipliers = _verify(groom, sim, g, problem.contacts)
+        shape = _position_hessian_min(groom, sim, multipliers, problem.contacts, g) > -SADDLE_TOLERANCE[precision()]
+    # a balance that is a saddle is worthless (the strand leaves it at once): such a strand
+    # keeps its groomed rest shape (it sags, but stays put where it sags), flagged in the report
+    fallback = chosen & ~clipped & ~(torsion & shape) & (not keep_saddles)
+    wbar[fallback] = wbar0[fallback]
+    _set_rest_curvature(sim, wbar)
+    if rest_twist is not None:
+        rest_twist[fallback] = twist0[fallback]
+        sim.model.rest_twist.from_numpy(rest_twist.astype(sim.model.rest_twist.to_numpy().dtype))
+    with single_threaded_blas():
+        residual, weight, contact_force, _ = _verify(groom, sim, g, problem.contacts)
+    report = _report(groom, wbar, wbar0, clipped, torsion | ~chosen, shape | ~chosen, fallback, chosen,
+                     residual, weight, contact_force, problem.contacts, max_relative_residual, twist,
+                     rounds, converged, time.perf_counter() - started)
     return groom.with_rest_curvature(wbar, rest_twist), report
 
 
@@ -196,7 +224,6 @@ def _twist_hessian_min(groom, sim):
     twist stiffness GJ / l. The Hessian is tridiagonal (an edge's angle meets its neighbours' in
     one twist and one bending term), so three central differences of dE/dtheta, each moving every
     third edge of every strand, give all of it."""
-    from .runtime import precision
     step = 1e-5 if precision() == "float64" else 1e-2  # [rad]
     theta = sim.material_angles()
     s_count, edges = theta.shape
@@ -276,6 +303,8 @@ def _strand_mask(strands, count):
     if strands is None:
         return np.ones(count, dtype=bool)
     picked = np.asarray(strands)
+    if picked.size == 0:
+        return np.zeros(count, dtype=bool)
     if picked.dtype == bool:
         if picked.shape != (count,):
             raise ValueError(f"strands as a mask must have shape [{count}], got {list(picked.shape)}")
@@ -508,10 +537,12 @@ def _clip(wbar, limit):
 
 def _verify(groom, sim, g, contacts):
     """Net force [S] N on the free nodes at the final rest curvature and angles, with only the
-    tensions and contact forces solved; the free weight [S] N and the contact force [S] N."""
+    tensions and contact forces solved; the free weight [S] N, the contact force [S] N and per
+    strand the multipliers (tensions of edges 1..n-2, then contact forces) [N]."""
     f = sim.elastic_forces()
     mass = sim.model.mass.to_numpy().astype(np.float64)
     residual, weight, contact = (np.zeros(groom.n_strands) for _ in range(3))
+    multipliers = []
     for s, n in enumerate(groom.node_counts):
         free = slice(CLAMPED_NODES, n)
         rhs = -(f[s, free] + mass[s, free, None] * g).reshape(-1)
@@ -522,20 +553,82 @@ def _verify(groom, sim, g, contacts):
         residual[s] = np.linalg.norm(a @ z - rhs)
         weight[s] = mass[s, free].sum() * np.linalg.norm(g)
         contact[s] = z[n - 2:].sum()
-    return residual, weight, contact
+        multipliers.append(z)
+    return residual, weight, contact, multipliers
 
 
-def _report(groom, wbar, wbar0, clipped, stable, chosen, residual, weight, contact_force, contacts,
-            max_relative_residual, twist, rounds, converged, seconds):
+def _position_hessian_min(groom, sim, multipliers, contacts, g):
+    """Smallest eigenvalue [S] of the energy's Hessian on the constraint manifold at the groomed
+    pose (angles held), in units of the strand's mean nodal weight over its mean segment
+    length: negative means the balance is a saddle, and
+    the strand leaves it (measured: an e-fold every ~7 ms for hair leaving the scalp sideways
+    and bending down, whatever the time step). H = -dF/dx (central differences of the
+    simulator's force, one node coordinate of every strand at a time) + sum_j T_j d^2|e_j|/dx^2,
+    T_j the balance's tensions, projected on the motions that keep the edge lengths and the
+    contact nodes' normal offsets."""
+    x0 = sim.positions().astype(np.float64)
+    s_count, n_max = x0.shape[:2]
+    lengths = sim.model.rest_length.to_numpy()
+    step = (1e-6 if precision() == "float64" else 1e-3) * float(np.median(lengths[lengths > 0]))
+    hess = np.zeros((s_count, n_max, 3, n_max, 3))
+    for i in range(CLAMPED_NODES, n_max):
+        for c in range(3):
+            forces = []
+            for sign in (1.0, -1.0):
+                x = x0.copy()
+                x[:, i, c] += sign * step
+                sim.set_positions(x)
+                forces.append(sim.elastic_forces().astype(np.float64))
+            hess[:, :, :, i, c] = -(forces[0] - forces[1]) / (2.0 * step)
+    sim.set_positions(x0)
+    out = np.ones(s_count)
+    for s, n in enumerate(groom.node_counts):
+        m = 3 * (n - 2)
+        h = hess[s, 2:n, :, 2:n, :].reshape(m, m)
+        h = 0.5 * (h + h.T)
+        e = np.diff(x0[s, :n], axis=0)
+        norm = np.linalg.norm(e, axis=1)
+        t = e / norm[:, None]
+        rows = []
+        for j in range(1, n - 1):  # edge j joins nodes j and j+1; node 1 is clamped
+            block = multipliers[s][j - 1] * (np.eye(3) - np.outer(t[j], t[j])) / norm[j]
+            row = np.zeros(m)
+            for node, sign in ((j, -1.0), (j + 1, 1.0)):
+                if node >= CLAMPED_NODES:
+                    k = 3 * (node - CLAMPED_NODES)
+                    row[k:k + 3] = sign * t[j]
+            rows.append(row)
+            a, b = 3 * (j - CLAMPED_NODES), 3 * (j + 1 - CLAMPED_NODES)
+            h[b:b + 3, b:b + 3] += block
+            if j >= CLAMPED_NODES:
+                h[a:a + 3, a:a + 3] += block
+                h[a:a + 3, b:b + 3] -= block
+                h[b:b + 3, a:a + 3] -= block
+        for node, normal in zip(*contacts[s]):
+            row = np.zeros(m)
+            row[3 * (node - CLAMPED_NODES):3 * (node - CLAMPED_NODES) + 3] = normal
+            rows.append(row)
+        _, sv, vt = np.linalg.svd(np.array(rows))
+        rank = int(np.count_nonzero(sv > 1e-10 * sv.max()))
+        basis = vt[rank:].T
+        eig = np.linalg.eigvalsh(basis.T @ h @ basis)
+        mass = sim.model.mass.to_numpy()[s, CLAMPED_NODES:n].mean()
+        out[s] = eig[0] / max(mass * np.linalg.norm(g) / norm.mean(), 1e-300)
+    return out
+
+
+def _report(groom, wbar, wbar0, clipped, torsion, shape, fallback, chosen, residual, weight,
+            contact_force, contacts, max_relative_residual, twist, rounds, converged, seconds):
     relative = residual / np.maximum(weight, 1e-300)
     pairs = np.linalg.norm(wbar.reshape(wbar.shape[:2] + (2, 2)), axis=3)
     turning = np.degrees(2.0 * np.arctan(pairs.max(axis=(1, 2)) / 2.0))
     return SagFreeReport(
         residual=residual, weight=weight, relative_residual=relative,
         rest_change=np.abs(wbar - wbar0).max(axis=(1, 2)), max_turning_deg=turning,
-        clipped=clipped, reachable=~chosen | (~clipped & stable & (relative <= max_relative_residual)),
+        clipped=clipped, fell_back=fallback,
+        reachable=~chosen | (~clipped & ~fallback & (relative <= max_relative_residual)),
         contact_nodes=np.array([len(c[0]) for c in contacts]), contact_force=contact_force,
-        torsion_stable=stable, solved=chosen,
+        torsion_stable=torsion, shape_stable=shape, solved=chosen,
         twist=twist, iterations=rounds, converged=converged, seconds=seconds)
 
 

@@ -60,9 +60,12 @@ def test_rolling_instability_is_flagged(bend_radius, stable):
     # settle them: back to the balance if stable, to another minimum if not.
     draped = load_scene_module(SCENES / "sagfree_pair.py")._straight_draped
     groom = th.Groom.from_polylines(draped(np.zeros(3), length=0.3, bend_radius=bend_radius))
-    fixed, report = th.sag_free(groom, th.Material(), twist="quasistatic", max_turning_deg=170.0)
+    _, report = th.sag_free(groom, th.Material(), twist="quasistatic", max_turning_deg=170.0)
+    assert bool(report.torsion_stable[0]) is stable and bool(report.fell_back[0]) is not stable
+    assert report.n_unreachable == (not stable)
+    fixed, report = th.sag_free(groom, th.Material(), twist="quasistatic", max_turning_deg=170.0,
+                                keep_saddles=True)
     assert report.relative_residual.max() < 1e-4  # balanced either way
-    assert bool(report.torsion_stable[0]) is stable and report.n_unreachable == (not stable)
     sim = th.Simulator(fixed, th.Material(), twist="quasistatic")
     balance = sim.material_angles()
     nudged = balance.copy()
@@ -72,6 +75,22 @@ def test_rolling_instability_is_flagged(bend_radius, stable):
     moved = np.abs(sim.material_angles() - balance).max()
     print(f"\nbend radius {bend_radius}: angles settle {moved:.2e} rad from the balance")
     assert (moved < 1e-6) if stable else (moved > 0.5)
+
+
+def test_a_balance_that_is_a_saddle_is_flagged_and_not_used():
+    # a wavy strand leaning out at 45 degrees: its balance needs rest curvatures against the
+    # groomed waves, and the balanced pose is a saddle (the simulation leaves it at once)
+    groom = th.Groom.wavy(roots=np.zeros((1, 3)), directions=DIAGONAL, length=0.3, n_nodes=40,
+                          amplitude=0.01, wavelength=0.06)
+    saddle, report = th.sag_free(groom, th.Material(), twist="none", max_turning_deg=170.0, keep_saddles=True)
+    assert report.relative_residual[0] < 1e-4 and not report.shape_stable[0]
+    left = drift_after(saddle, 0.3)
+    kept, report = th.sag_free(groom, th.Material(), twist="none", max_turning_deg=170.0)
+    print(f"\nthe saddle balance leaves the groom by {left * 1e3:.1f} mm in 0.3 s")
+    assert left > 5e-3
+    assert report.fell_back[0] and report.n_unreachable == 1
+    assert np.allclose(kept.rest_curvature, th.sag_free(groom, th.Material(), twist="none",
+                                                        strands=[])[0].rest_curvature)
 
 
 def test_contact_with_the_head_carries_part_of_the_weight():
