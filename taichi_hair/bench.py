@@ -222,7 +222,8 @@ def add_parser(sub):
                    help="dense strands interpolated per frame on the interpolation row; 0 skips it")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
-                              "columns also pip install \"cosseratbench[pyelastica,mujoco]\")")
+                              "columns also pip install \"cosseratbench[pyelastica,mujoco]\" "
+                              "\"mujoco<4\")")
     cb.add_argument("--cosseratbench", action="store_true",
                     help="run cosseratbench's scenarios for taichi_hair and the other solvers side by "
                          "side and print every metric and wall time in one table (float64)")

@@ -369,7 +369,8 @@ def compare(experiments=(), solvers=COMPARED, *, n_elements=None, out="out/cosse
         blocks.append("\n".join(lines))
     if missing:
         blocks.append('solvers not installed: pip install "cosseratbench[pyelastica,mujoco]" '
-                      "for the comparison columns")
+                      '"mujoco<4" for the comparison columns (MuJoCo 4 dropped the composite '
+                      "cable cosseratbench 0.3 builds)")
     return "\n\n".join(blocks)
 
 
