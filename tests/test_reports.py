@@ -26,7 +26,7 @@ def accuracy(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stability(tmp_path_factory):
-    # the gale case is left to test_gale_wind_keeps_edges_inextensible below (a known failure)
+    # the gale case is left to test_gale_wind_keeps_edges_inextensible below
     cases = [c for c in reports.stability_cases(quick=True) if not c.wind]
     return reports.stability_report(True, tmp_path_factory.mktemp("stability"), cases=cases, duration=0.1)
 
