@@ -39,7 +39,6 @@ def _median_ms(samples):
 
 def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "quasistatic") -> dict:
     """Time one strand count in this process (Taichi already initialised)."""
-    import taichi as ti
     from .materials import Material
     from .simulator import Simulator
 
@@ -49,17 +48,7 @@ def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "qua
         warnings.simplefilter("ignore", RuntimeWarning)
         sim = Simulator(groom, material, dt=1e-3, twist=twist)
     steps = int(round(FRAME / sim.dt))
-    start = time.perf_counter()
-    sim.step(1)
-    ti.sync()
-    compile_s = time.perf_counter() - start
-    samples = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        sim.step(steps)
-        ti.sync()
-        samples.append(time.perf_counter() - start)
-    frame_ms = _median_ms(samples)
+    compile_s, frame_ms = _time_frames(sim, repeats)
     stages = stage_breakdown(sim, stage_steps)
     return {
         "strands": n_strands, "nodes": NODES, "steps_per_frame": steps, "substeps": sim.substeps,

@@ -197,22 +197,23 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
     if twist == "quasistatic":
         rest_twist = _balance_twist(groom, sim)
         rest_twist[~chosen] = twist0[~chosen]
-        sim.model.rest_twist.from_numpy(rest_twist.astype(sim.model.rest_twist.to_numpy().dtype))
+        _set_rest_twist(sim, rest_twist)
     torsion = (_twist_hessian_min(groom, sim) > 0.0 if twist == "quasistatic"
                else np.ones(groom.n_strands, dtype=bool))
     with single_threaded_blas():
-        _, _, _, multipliers = _verify(groom, sim, g, problem.contacts)
+        residual, weight, contact_force, multipliers = _verify(groom, sim, g, problem.contacts)
         shape = _position_hessian_min(groom, sim, multipliers, problem.contacts, g) > -SADDLE_TOLERANCE[precision()]
     # a balance that is a saddle is worthless (the strand leaves it at once): such a strand
     # keeps its groomed rest shape (it sags, but stays put where it sags), flagged in the report
     fallback = chosen & ~clipped & ~(torsion & shape) & (not keep_saddles)
-    wbar[fallback] = wbar0[fallback]
-    _set_rest_curvature(sim, wbar)
-    if rest_twist is not None:
-        rest_twist[fallback] = twist0[fallback]
-        sim.model.rest_twist.from_numpy(rest_twist.astype(sim.model.rest_twist.to_numpy().dtype))
-    with single_threaded_blas():
-        residual, weight, contact_force, _ = _verify(groom, sim, g, problem.contacts)
+    if fallback.any():  # the balance changed: measure the rest shape actually returned
+        wbar[fallback] = wbar0[fallback]
+        _set_rest_curvature(sim, wbar)
+        if rest_twist is not None:
+            rest_twist[fallback] = twist0[fallback]
+            _set_rest_twist(sim, rest_twist)
+        with single_threaded_blas():
+            residual, weight, contact_force, _ = _verify(groom, sim, g, problem.contacts)
     report = _report(groom, wbar, wbar0, clipped, torsion | ~chosen, shape | ~chosen, fallback, chosen,
                      residual, weight, contact_force, problem.contacts, max_relative_residual, twist,
                      rounds, converged, time.perf_counter() - started)
@@ -253,7 +254,7 @@ def _twist_hessian_min(groom, sim):
 
 
 def _balance_twist(groom, sim):
-    """Rest twist [S, N] (set on sim too) that makes dE/dtheta = 0 on every free edge at the
+    """Rest twist [S, N] (not yet set on sim) that makes dE/dtheta = 0 on every free edge at the
     simulator's current angles: dE/dtheta_j is affine in the rest twist, d/dmbar_j of it is
     -GJ / l_j on edge j and +GJ / l_j on edge j-1, so the change dmbar_j = l_j / GJ * sum_{k>=j}
     g_k cancels the gradient g exactly (edge 0 is clamped: no equation)."""
@@ -264,7 +265,6 @@ def _balance_twist(groom, sim):
     for s, n in enumerate(groom.node_counts):
         tail = np.cumsum(grad[s, 1:n - 1][::-1])[::-1]  # sum_{k >= j} g_k, j = 1..n-2
         rest_twist[s, 1:n - 1] += voronoi[s, 1:n - 1] / gj[s] * tail
-    sim.model.rest_twist.from_numpy(rest_twist.astype(sim.model.rest_twist.to_numpy().dtype))
     return rest_twist
 
 
@@ -335,6 +335,11 @@ def _probe_simulator(groom, material, twist):
 def _set_rest_curvature(sim, wbar):
     kappa = sim.model.rest_kappa
     kappa.from_numpy(wbar.astype(kappa.to_numpy().dtype))
+
+
+def _set_rest_twist(sim, rest_twist):
+    twist = sim.model.rest_twist
+    twist.from_numpy(rest_twist.astype(twist.to_numpy().dtype))
 
 
 def _linearise(sim):
@@ -664,6 +669,7 @@ def drift_experiment(n_guides: int = 200, seconds: float = 5.0, drag: float = 3e
     head, groom = mixed_head_groom(n_guides, n_nodes)
     material = Material()
     fixed, report = sag_free(groom, material, head=head, twist="none", max_turning_deg=160.0)
+    held_strands = report.solved & ~report.fell_back & ~report.clipped
     rows = {}
     for label, start in (("groomed rest shape", groom), ("sag-free rest shape", fixed)):
         with warnings.catch_warnings():
@@ -676,13 +682,13 @@ def drift_experiment(n_guides: int = 200, seconds: float = 5.0, drag: float = 3e
         wall = time.perf_counter() - began
         drift = np.linalg.norm(sim.positions() - groom.positions, axis=2)
         mask = np.arange(groom.max_nodes)[None, :] < groom.node_counts[:, None]
-        held = mask & (report.solved & ~report.fell_back & ~report.clipped)[:, None]
+        held = mask & held_strands[:, None]
         rows[label] = {"mean_drift_m": float(drift[mask].mean()), "max_drift_m": float(drift[mask].max()),
                        "held_mean_drift_m": float(drift[held].mean()) if held.any() else math.nan,
                        "held_max_drift_m": float(drift[held].max()) if held.any() else math.nan,
                        "start_offset_m": float(np.linalg.norm(start_x - groom.positions, axis=2)[mask].max()),
                        "wall_s": wall, "substeps": sim.substeps}
-    return {"n_guides": groom.n_strands, "n_held": int((report.solved & ~report.fell_back & ~report.clipped).sum()),
+    return {"n_guides": groom.n_strands, "n_held": int(held_strands.sum()),
             "n_nodes": n_nodes, "seconds": seconds, "drag": drag, "dt": dt,
             "solve_s": report.seconds, "solve_ms_per_guide": 1e3 * report.seconds / groom.n_strands,
             "summary": report.summary(), "unreachable": report.n_unreachable, "rows": rows}
