@@ -45,14 +45,17 @@ def material_directors(u, v, theta):
 
 
 @ti.func
-def strand_frames(s, x: ti.template(), node_count: ti.template(), root_t: ti.template(),
-                  root_u: ti.template(), theta: ti.template(), bishop_u: ti.template(),
-                  bishop_v: ti.template(), m1: ti.template(), m2: ti.template(), kb: ti.template()):
+def strand_frames(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+                  root_t: ti.template(), root_u: ti.template(), theta: ti.template(),
+                  bishop_u: ti.template(), bishop_v: ti.template(), m1: ti.template(),
+                  m2: ti.template(), kb: ti.template()):
     """Strand s's Bishop frames, material frames and curvature binormals (see update_frames)."""
     n = node_count[s]
     t_prev = (x[s, 1] - x[s, 0]).normalized()
     u = parallel_transport(root_u[s], root_t[s], t_prev)
     kb[s, 0] = vec3(0.0)
+    if ti.static(clamp):  # node 0 bends between the clamp (root_t) and edge 0
+        kb[s, 0] = curvature_binormal(root_t[s], x[s, 1] - x[s, 0])
     for j in range(n - 1):
         e = x[s, j + 1] - x[s, j]
         t = e.normalized()
@@ -70,13 +73,15 @@ def strand_frames(s, x: ti.template(), node_count: ti.template(), root_t: ti.tem
 
 
 @ti.kernel
-def update_frames(x: Vec3s2, node_count: Ints1, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
-                  bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2):
+def update_frames(clamp: ti.template(), x: Vec3s2, node_count: Ints1, root_t: Vec3s1,
+                  root_u: Vec3s1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2,
+                  m2: Vec3s2, kb: Vec3s2):
     """Bishop frames (u, v), material frames (m1, m2) of every edge [S, N-1] and curvature
-    binormals kb of every node [S, N] (zero at the two ends) from positions x [m].
+    binormals kb of every node [S, N] from positions x [m]: zero at the tip, and at the root
+    unless it is clamped (clamp: kb_0 between the clamp direction root_t and edge 0).
     One thread per strand: the parallel transport sweeps from root to tip."""
     for s in range(x.shape[0]):
-        strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+        strand_frames(s, clamp, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
 
 
 @ti.func

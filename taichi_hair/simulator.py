@@ -92,11 +92,7 @@ class Simulator:
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
         self.twist_iterations = twist_iterations
-        self.model, self.state = build(groom, material)
-        if root == "pinned":  # node 1 joins the free nodes
-            inv_mass = self.model.inv_mass.to_numpy()
-            inv_mass[:, 1] = 1.0 / self.model.mass.to_numpy()[:, 1]
-            self.model.inv_mass.from_numpy(inv_mass)
+        self.model, self.state = build(groom, material, clamp=root == "clamped")
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
@@ -491,8 +487,8 @@ class Simulator:
     def update_frames(self) -> None:
         """Bishop and material frames and curvature binormals from the current positions."""
         st, md = self.state, self.model
-        update_frames(st.x, md.node_count, st.root_t, st.root_u, st.theta, st.bishop_u, st.bishop_v,
-                      st.m1, st.m2, st.kb)
+        update_frames(md.clamp, st.x, md.node_count, st.root_t, st.root_u, st.theta, st.bishop_u,
+                      st.bishop_v, st.m1, st.m2, st.kb)
 
     def update_twist(self) -> dict:
         """Solve the free edges' material angles with the chosen twist mode. Returns
@@ -509,8 +505,9 @@ class Simulator:
     def strand_elastic_energy(self) -> np.ndarray:
         """Elastic energy of each strand [S] in joules, material angles as they are."""
         st, md = self.state, self.model
-        strand_elastic_energy(md.node_count, st.kb, st.m1, st.m2, st.theta, md.rest_kappa,
-                              md.rest_twist, md.voronoi, md.stiffness, st.strand_scalar)
+        strand_elastic_energy(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
+                              st.root_u, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
+                              st.strand_scalar)
         return st.strand_scalar.to_numpy().astype(np.float64)
 
     def elastic_energy(self) -> float:
@@ -542,16 +539,16 @@ class Simulator:
         material angles held fixed (holonomy term included). At twist equilibrium (after
         `update_twist` with "quasistatic") this is also the total force."""
         st, md = self.state, self.model
-        elastic_forces(st.x, md.node_count, st.kb, st.m1, st.m2, md.rest_kappa, md.voronoi,
-                       md.stiffness, st.force)
+        elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
+                       md.rest_kappa, md.voronoi, md.stiffness, st.force)
         return st.force.to_numpy().astype(np.float64)
 
     def theta_gradient(self) -> np.ndarray:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
         st, md = self.state, self.model
         out = st.scratch_edge[0]
-        theta_gradient(md.node_count, st.kb, st.m1, st.m2, st.theta, md.rest_kappa, md.rest_twist,
-                       md.voronoi, md.stiffness, out)
+        theta_gradient(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
+                       md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
         return out.to_numpy().astype(np.float64)
 
 

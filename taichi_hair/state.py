@@ -21,15 +21,19 @@ class RodModel:
     """Rest data and constants. Shapes: S strands, N nodes.
 
     node_count int32 [S]; rest_length [S, N-1] m; voronoi [S, N] m (interior nodes: half the
-    two rest edges; the two end nodes: half their edge); inv_mass [S, N] 1/kg (0 on the clamped
-    root edge's two nodes); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
+    two rest edges; the two end nodes: half their edge, which is also the clamped root node's
+    share of the strand); inv_mass [S, N] 1/kg (0 on the root node, which rides on the head);
+    clamp: the root is clamped (node 0 bends and twists against the head-carried root frame)
+    rather than pinned; stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
     rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
     rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
-    the root edge's two nodes [m], its unit tangent and its Bishop vector u, all in head
+    the root edge's two nodes [m], its unit tangent and its reference u (the root edge's rest
+    material direction m1, so the clamp's angle is 0 and rest_theta[:, 0] = 0), all in head
     coordinates (the rest pose); root_tangent_np, root_reference_np: numpy [S, 3] copies."""
 
     groom: Groom
     materials: tuple
+    clamp: bool
     node_count: object
     rest_length: object
     voronoi: object
@@ -55,7 +59,7 @@ class RodModel:
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
 COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
-            "twist_iterations": 3, "bad_step": 4}
+            "twist_iterations": 3, "bad_step": 4, "twist_cap_hits": 5, "twist_stalls": 6}
 
 
 @dataclass
@@ -82,7 +86,7 @@ class RodState:
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
     strand_count: object  # [S] int
-    counters: object  # [S, 5] int, see COUNTERS
+    counters: object  # [S, 7] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
 
 
@@ -101,7 +105,7 @@ def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
         vor[1:] += 0.5 * lengths
         voronoi[s, :n] = vor
         mass[s, :n] = linear_density[s] * vor
-        inv_mass[s, 2:n] = 1.0 / mass[s, 2:n]
+        inv_mass[s, 1:n] = 1.0 / mass[s, 1:n]
     return rest_length, voronoi, inv_mass, mass
 
 
@@ -161,10 +165,11 @@ def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarra
     return theta
 
 
-def build(groom: Groom, material) -> tuple[RodModel, RodState]:
+def build(groom: Groom, material, clamp: bool = True) -> tuple[RodModel, RodState]:
     """Model and state for `groom` with `material` (one Material or one per strand), the state
-    at the rest shape with rest material frames. Rest curvatures and twists are measured on the
-    rest shape with the same kernels the simulation uses, so the rest shape has zero energy."""
+    at the rest shape with rest material frames; clamp: the roots are clamped (else pinned).
+    Rest curvatures and twists are measured on the rest shape with the same kernels the
+    simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
     table = stiffness_table(materials)
     rest_length, voronoi, inv_mass, mass = _voronoi_and_mass(groom, table["linear_density"])
@@ -173,7 +178,7 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
     root_u = perpendicular_unit(root_t)
     state = allocate_state(groom, root_t, root_u)
     node_count = arrays.ints((groom.n_strands,), groom.node_counts)
-    update_frames(state.x, node_count, state.root_t, state.root_u, state.theta, state.bishop_u,
+    update_frames(clamp, state.x, node_count, state.root_t, state.root_u, state.theta, state.bishop_u,
                   state.bishop_v, state.m1, state.m2, state.kb)
     elliptic = np.array([m.ellipticity > 1.0 for m in materials])
     rest_theta = np.zeros((groom.n_strands, groom.max_nodes - 1))
@@ -181,10 +186,19 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
         aligned = align_to_curvature(state.kb.to_numpy(), state.bishop_u.to_numpy(),
                                      state.bishop_v.to_numpy(), groom.node_counts)
         rest_theta[elliptic] = aligned[elliptic]
+        # turn the reference onto the root edge's rest m1: every Bishop frame turns with it (the
+        # transport commutes with turns about the tangent), so each angle drops by theta^0
+        c, s_ = np.cos(rest_theta[:, :1]), np.sin(rest_theta[:, :1])
+        root_u = c * root_u + s_ * np.cross(root_t, root_u)
+        rest_theta -= rest_theta[:, :1]
+        state.root_u.from_numpy(root_u.astype(arrays.np_float()))
+        update_frames(clamp, state.x, node_count, state.root_t, state.root_u, state.theta,
+                      state.bishop_u, state.bishop_v, state.m1, state.m2, state.kb)
     state.theta.from_numpy(rest_theta.astype(arrays.np_float()))
     update_material_frames(node_count, state.theta, state.bishop_u, state.bishop_v, state.m1, state.m2)
     rest_kappa = arrays.vectors(4, (groom.n_strands, groom.max_nodes))
-    material_curvatures(node_count, state.kb, state.m1, state.m2, rest_kappa)
+    material_curvatures(clamp, node_count, state.kb, state.m1, state.m2, state.root_t, state.root_u,
+                        rest_kappa)
     if groom.rest_curvature is not None:  # e.g. a sag-free rest shape: not the groomed one
         rest_kappa.from_numpy(np.asarray(groom.rest_curvature).astype(arrays.np_float()))
     rest_twist = np.zeros((groom.n_strands, groom.max_nodes))
@@ -193,7 +207,7 @@ def build(groom: Groom, material) -> tuple[RodModel, RodState]:
         rest_twist = np.asarray(groom.rest_twist, dtype=np.float64)
     stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["linear_density"]], axis=1)
     model = RodModel(
-        groom=groom, materials=tuple(materials), node_count=node_count,
+        groom=groom, materials=tuple(materials), clamp=bool(clamp), node_count=node_count,
         rest_length=arrays.scalars(rest_length.shape, rest_length),
         voronoi=arrays.scalars(voronoi.shape, voronoi),
         inv_mass=arrays.scalars(inv_mass.shape, inv_mass),

@@ -26,7 +26,7 @@ from .linalg import thomas_solve
 from .pins import strand_carry_root_frame, strand_place_pins
 from .rod import elastic_forces, strand_elastic_forces
 from .state import COUNTERS
-from .twist import strand_twist_kmoch, strand_twist_quasistatic
+from .twist import CAPPED, STALLED, strand_twist_kmoch, strand_twist_quasistatic
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
@@ -36,8 +36,11 @@ FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed ste
 # Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
 # it slows the linear convergence only by a factor HELD_DAMPING per iteration.
 HELD_DAMPING = 1e-6
-PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD = (COUNTERS[k] for k in (
-    "projection_iterations", "projection_cap_hits", "projection_stalls", "twist_iterations", "bad_step"))
+# a twist solve that stalled at the rounding floor above this scaled residual is a failed step
+TWIST_FAILED_ABOVE = 1e-3
+PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL = (COUNTERS[k] for k in (
+    "projection_iterations", "projection_cap_hits", "projection_stalls", "twist_iterations", "bad_step",
+    "twist_cap_hits", "twist_stalls"))
 
 
 @dataclass(frozen=True)
@@ -107,11 +110,10 @@ def rotate(head: ti.template(), k, p):
 @ti.func
 def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: ti.template(),
                       root_t: ti.template(), root_u: ti.template(), pinned_root: ti.template()):
-    """The clamped root edge rides on head pose k: its two nodes x = R xbar + t, and the
-    reference (t, u) from which the Bishop frames start turns with R. A pinned root places
-    node 0 only; its reference is carried in time instead (pins.strand_carry_root_frame)."""
-    for node in ti.static(range(1 if pinned_root else 2)):
-        x[s, node] = rotate(head, k, root_frame[s, node]) + head[k, 3]
+    """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
+    clamp that node 0 bends and twists against and from which the Bishop frames start, turns
+    with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
+    x[s, 0] = rotate(head, k, root_frame[s, 0]) + head[k, 3]
     if ti.static(not pinned_root):
         root_t[s] = rotate(head, k, root_frame[s, 2])
         root_u[s] = rotate(head, k, root_frame[s, 3])
@@ -213,23 +215,39 @@ def record_projection(s, counters: ti.template(), residuals: ti.template(), it, 
 
 
 @ti.func
-def strand_twist(s, twist_mode: ti.template(), tol, max_iterations, node_count: ti.template(),
-                 bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                 theta: ti.template(), rest_kappa: ti.template(), rest_twist: ti.template(),
-                 voronoi: ti.template(), stiffness: ti.template(), m1: ti.template(), m2: ti.template(),
-                 a: ti.template(), b: ti.template(), c: ti.template(), counters: ti.template(),
-                 residuals: ti.template()):
-    """The twist update of strand s (kmoch or quasistatic); material frames follow."""
-    if ti.static(twist_mode == 1):
-        strand_twist_kmoch(s, node_count, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
-                           voronoi, stiffness, a)
-    if ti.static(twist_mode == 2):
-        it, res = strand_twist_quasistatic(s, node_count, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                           rest_twist, voronoi, stiffness, tol, max_iterations, a, b, c)
-        counters[s, TWIST_IT] = ti.max(counters[s, TWIST_IT], it)
-        residuals[s, 1] = ti.max(residuals[s, 1], res)
+def strand_twist(s, twist_mode: ti.template(), clamp: ti.template(), tol, max_iterations,
+                 node_count: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
+                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                 rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
+                 m1: ti.template(), m2: ti.template(), a: ti.template(), b: ti.template(),
+                 c: ti.template(), counters: ti.template(), residuals: ti.template()):
+    """The twist update of strand s (kmoch or quasistatic); material frames follow. Kmoch's rule
+    needs an elliptic section: round strands solve their twist exactly. Returns 1 if the solve
+    failed (iteration cap, or stalled far from equilibrium), else 0."""
+    failed = 0
     if ti.static(twist_mode != 0):
+        exact = 1
+        if ti.static(twist_mode == 1):
+            if stiffness[s].x != stiffness[s].y:
+                exact = 0
+        if exact:
+            it, res, how = strand_twist_quasistatic(s, clamp, node_count, bishop_u, bishop_v, kb,
+                                                    theta, rest_kappa, rest_twist, voronoi,
+                                                    stiffness, tol, max_iterations, a, b, c)
+            counters[s, TWIST_IT] = ti.max(counters[s, TWIST_IT], it)
+            residuals[s, 1] = ti.max(residuals[s, 1], res)
+            if how == CAPPED:
+                counters[s, TWIST_CAP] += 1
+                failed = 1
+            if how == STALLED:
+                counters[s, TWIST_STALL] += 1
+                if res > TWIST_FAILED_ABOVE:
+                    failed = 1
+        elif ti.static(twist_mode == 1):
+            strand_twist_kmoch(s, clamp, node_count, bishop_u, bishop_v, kb, theta, rest_kappa,
+                               rest_twist, voronoi, stiffness, a)
         strand_material_frames(s, node_count, theta, bishop_u, bishop_v, m1, m2)
+    return failed
 
 
 # ---- the fused driver -------------------------------------------------------------------------
@@ -266,7 +284,8 @@ def advance_strands(
                 prev = k
             elif k > 0:
                 prev = 1
-            strand_elastic_forces(s, x, node_count, kb, m1, m2, rest_kappa, voronoi, stiffness, force)
+            strand_elastic_forces(s, not pinned_root, x, node_count, kb, m1, m2, root_t, root_u,
+                                  rest_kappa, voronoi, stiffness, force)
             if ti.static(external or touch):
                 strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
                                        voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)
@@ -285,12 +304,14 @@ def advance_strands(
             bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
             if not (res <= FAILED_ABOVE):
                 bad = 1
-            strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+            strand_frames(s, not pinned_root, x, node_count, root_t, root_u, theta, bishop_u,
+                          bishop_v, m1, m2, kb)
             if ti.static(pinned_root):
                 strand_carry_root_frame(s, x, root_t, root_u)
-            strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v,
-                         kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, scratch_a,
-                         scratch_b, scratch_c, counters, residuals)
+            if strand_twist(s, twist_mode, not pinned_root, twist_tol, twist_iterations, node_count,
+                            bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi,
+                            stiffness, m1, m2, scratch_a, scratch_b, scratch_c, counters, residuals):
+                bad = 1
             if bad:
                 counters[s, BAD] = k
                 break
@@ -406,12 +427,14 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
     for s in range(x.shape[0]):
         if strand_velocities(s, inv_h, max_speed, node_count, x, x_prev, v):
             counters[s, BAD] = 0
-        strand_frames(s, x, node_count, root_t, root_u, theta, bishop_u, bishop_v, m1, m2, kb)
+        strand_frames(s, not pinned_root, x, node_count, root_t, root_u, theta, bishop_u, bishop_v,
+                      m1, m2, kb)
         if ti.static(pinned_root):
             strand_carry_root_frame(s, x, root_t, root_u)
-        strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v, kb,
-                     theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a, b, c, counters,
-                     residuals)
+        if strand_twist(s, twist_mode, not pinned_root, twist_tol, twist_iterations, node_count,
+                        bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness,
+                        m1, m2, a, b, c, counters, residuals):
+            counters[s, BAD] = 0
 
 
 @ti.kernel
@@ -431,8 +454,8 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
     stage = timers if timers is not None else (lambda name: nullcontext())
     user = c.user_force is not None
     with stage("forces"):
-        elastic_forces(st.x, md.node_count, st.kb, st.m1, st.m2, md.rest_kappa, md.voronoi,
-                       md.stiffness, st.force)
+        elastic_forces(not plan.pinned_root, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t,
+                       st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
         if plan.external_forces or plan.touch or user:
             external_and_user_forces(c.time, c.drag, plan.external_forces, plan.wind_field, plan.touch,
                                      user, md.node_count, md.mass, md.voronoi, st.x, st.v, c.loads,
@@ -461,14 +484,17 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
 
 @ti.kernel
 def update_twist_kernel(twist_tol: float, twist_iterations: int, twist_mode: ti.template(),
-                        node_count: Ints1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2,
+                        clamp: ti.template(), node_count: Ints1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2,
                         m1: Vec3s2, m2: Vec3s2, kb: Vec3s2, rest_kappa: Vec4s2, rest_twist: Scalars2,
                         voronoi: Scalars2, stiffness: Vec4s1, a: Scalars2, b: Scalars2, c: Scalars2,
                         counters: Ints2, residuals: Scalars2):
+    """The twist stage alone; counters[s, BAD] = 0 where it failed, else -1."""
     for s in range(theta.shape[0]):
-        strand_twist(s, twist_mode, twist_tol, twist_iterations, node_count, bishop_u, bishop_v, kb,
-                     theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a, b, c, counters,
-                     residuals)
+        counters[s, BAD] = -1
+        if strand_twist(s, twist_mode, clamp, twist_tol, twist_iterations, node_count, bishop_u,
+                        bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a,
+                        b, c, counters, residuals):
+            counters[s, BAD] = 0
 
 
 def run_twist_update(model, state, plan: StepPlan):
@@ -476,7 +502,7 @@ def run_twist_update(model, state, plan: StepPlan):
     md, st = model, state
     if plan.twist != "none":
         update_twist_kernel(plan.twist_tol, plan.twist_iterations, TWIST_CODES[plan.twist],
-                            md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb,
+                            not plan.pinned_root, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb,
                             md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, *st.scratch_edge,
                             st.counters, st.residuals)
 

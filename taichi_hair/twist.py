@@ -1,38 +1,57 @@
 """Twist update: the free edges' material angles theta^j [rad] given the centreline.
 
-Two modes (DESIGN.md):
-- `quasistatic`: Newton's method on dE/dtheta^j = 0 for every free edge (j >= 1; the root edge
-  is clamped). The Hessian in theta is tridiagonal per strand (Thomas algorithm). Its bending
-  diagonal can be negative far from equilibrium; it is clamped at zero there, which keeps the
-  system positive definite (the twist part is SPD with a clamped root) and the iteration a
-  descent; near the solution it is exact Newton.
+Free edges: every edge with a clamped root (the clamp frame holds angle 0, docs/model.md);
+edges 1.. with a pinned root, whose root edge keeps its own angle.
+
+Two modes (docs/model.md, "Twist"):
+- `quasistatic`: minimise the strand's energy over its free angles, E(theta) = E_bend +
+  E_twist with the centreline fixed, by Newton's method with guaranteed descent. The Hessian
+  in theta is tridiagonal per strand: each bending term depends on one angle, the twist terms
+  couple neighbours. Far from a minimum the bending diagonal can be negative; when the exact
+  Hessian is not positive definite (a pivot of its LDL^T factorisation <= 0) its bending
+  diagonal is clamped at zero, which is positive definite (the twist part is, with the clamp
+  or the held root edge), so the step is a descent direction. A backtracking line search on the
+  energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases every iteration, so
+  the iteration cannot cycle between branches, and near a minimum it is exact Newton
+  (quadratic). It ends converged (scaled residual below tol), stalled (no step changes theta
+  in this precision) or at the iteration cap; callers count stalls and refuse caps.
 - `kmoch`: Kmoch et al.'s rule for elliptic hair: m1 (the major axis, soft bending) follows the
   curvature binormals at the edge's two end nodes (their |kb|^2-weighted mean direction, taken
   modulo pi), choosing theta, theta + pi or theta - pi by the lowest local energy. Parallel
-  per edge (Jacobi: neighbours' angles from before the update).
+  per edge (Jacobi: neighbours' angles from before the update). Round strands have no axis to
+  follow: they are solved exactly, as in `quasistatic`.
 """
 
 import taichi as ti
 
-from .arrays import Ints1, Scalars1, Scalars2, Vec3s2, Vec4s1, Vec4s2, vec2
+from .arrays import vec2
 from .frames import material_directors
-from .linalg import thomas_solve
-from .rod import bend_terms, twist_terms
+from .rod import bend_terms, first_node, node_twist, twist_terms
+from .runtime import precision
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
 PI = 3.141592653589793
 MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
+ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver
+MAX_HALVINGS = 40
+# how a quasistatic solve ended (TWIST_STATUS[...]): callers count stalls and refuse caps
+CONVERGED, STALLED, CAPPED = 0, 1, 2
+
+
+def rounding_epsilon() -> float:
+    """Machine epsilon of the process's float (compile-time constant in kernels)."""
+    return 2.3e-16 if precision() == "float64" else 1.2e-7
 
 
 @ti.func
-def edge_bend_theta_terms(s, j, n, angle, bishop_u: ti.template(), bishop_v: ti.template(),
+def edge_bend_theta_terms(s, j, n, first, angle, bishop_u: ti.template(), bishop_v: ti.template(),
                           kb: ti.template(), rest_kappa: ti.template(), voronoi: ti.template(), k):
     """Bending energy, dE/dtheta^j and d2E/dtheta^j2 of the terms that involve edge j at angle."""
     d1, d2 = material_directors(bishop_u[s, j], bishop_v[s, j], angle)
     energy = 0.0
     grad = 0.0
     hess = 0.0
-    if j >= 1:  # node j sees edge j as its next edge
+    if j >= first:  # node j sees edge j as its next edge
         e, g, h, _ = bend_terms(kb[s, j], d1, d2, rest_kappa[s, j].zw, k.x, k.y, 0.5 / voronoi[s, j])
         energy += e
         grad += g
@@ -47,59 +66,159 @@ def edge_bend_theta_terms(s, j, n, angle, bishop_u: ti.template(), bishop_v: ti.
 
 
 @ti.func
-def strand_twist_quasistatic(s, node_count: ti.template(), bishop_u: ti.template(),
-                             bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
-                             rest_kappa: ti.template(), rest_twist: ti.template(),
-                             voronoi: ti.template(), stiffness: ti.template(), tol, max_iterations,
-                             grad: ti.template(), diag: ti.template(), upper: ti.template()):
-    """Newton on strand s's free angles (see solve_twist_quasistatic). Returns (iterations,
-    scaled residual when it stopped)."""
-    n = node_count[s]
-    k = stiffness[s]
-    scale = ti.max(k.x, k.z)
-    it = 0
-    res = 0.0
-    while True:
-        res = 0.0
-        for j in range(1, n - 1):
-            _, gb, hb = edge_bend_theta_terms(s, j, n, theta[s, j], bishop_u, bishop_v, kb,
-                                              rest_kappa, voronoi, k)
-            gt, ht = twist_terms(s, j, n, theta, rest_twist, voronoi, k.z)
-            grad[s, j] = gb + gt
-            diag[s, j] = ti.max(hb, 0.0) + ht
-            upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
-            res = ti.max(res, ti.abs(gb + gt) * 0.5 * (voronoi[s, j] + voronoi[s, j + 1]) / scale)
-        if res < tol or it >= max_iterations:
-            break
-        thomas_solve(s, 1, n - 2, diag, upper, grad)  # grad <- Newton step H^-1 grad
-        for j in range(1, n - 1):
-            # a step longer than pi/2 would jump between branches of the energy
-            theta[s, j] -= ti.math.clamp(grad[s, j], -0.5 * PI, 0.5 * PI)
-        it += 1
-    return it, res
-
-
-@ti.kernel
-def solve_twist_quasistatic(node_count: Ints1, bishop_u: Vec3s2, bishop_v: Vec3s2, kb: Vec3s2,
-                            theta: Scalars2, rest_kappa: Vec4s2, rest_twist: Scalars2,
-                            voronoi: Scalars2, stiffness: Vec4s1, tol: float, max_iterations: int,
-                            grad: Scalars2, diag: Scalars2, upper: Scalars2,
-                            iterations: Ints1, residual: Scalars1):
-    """Newton iterations on the free edges' angles until max_j |dE/dtheta^j| l_j / max(EI1, GJ)
-    < tol (l_j the edge's length); grad, diag, upper [S, N-1] are scratch. Keeps running maxima
-    of the iterations and final residuals in iterations[s], residual[s]. One thread per strand."""
-    for s in range(node_count.shape[0]):
-        it, res = strand_twist_quasistatic(s, node_count, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                           rest_twist, voronoi, stiffness, tol, max_iterations,
-                                           grad, diag, upper)
-        iterations[s] = ti.max(iterations[s], it)
-        residual[s] = ti.max(residual[s], res)
+def theta_energy(s, n, first, bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                 theta: ti.template(), rest_kappa: ti.template(), rest_twist: ti.template(),
+                 voronoi: ti.template(), k):
+    """The part of strand s's energy [J] that depends on its material angles: every bending
+    term seen from an edge and every twist term (node 0's clamp-side bending term is constant)."""
+    total = 0.0
+    for j in range(0, n - 1):
+        e, _, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                        rest_kappa, voronoi, k)
+        total += e
+    for i in range(first, n - 1):
+        m = node_twist(s, i, theta, rest_twist)
+        total += 0.5 * k.z * m * m / voronoi[s, i]
+    return total
 
 
 @ti.func
-def kmoch_edge_angle(s, j, n, bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                     theta: ti.template(), rest_kappa: ti.template(), rest_twist: ti.template(),
-                     voronoi: ti.template(), k):
+def assemble_newton(s, n, first, clamp_bending, bishop_u: ti.template(), bishop_v: ti.template(),
+                    kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                    rest_twist: ti.template(), voronoi: ti.template(), k, grad: ti.template(),
+                    diag: ti.template(), upper: ti.template()):
+    """Gradient and tridiagonal Hessian of theta_energy on the free edges first..n-2 (the first
+    free edge is the first bending node); clamp_bending = 1 clamps the bending diagonal at 0. Returns the
+    scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span."""
+    scale = ti.max(k.x, k.z)
+    res = 0.0
+    for j in range(first, n - 1):
+        _, gb, hb = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                          rest_kappa, voronoi, k)
+        gt, ht = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+        if clamp_bending:
+            hb = ti.max(hb, 0.0)
+        grad[s, j] = gb + gt
+        diag[s, j] = hb + ht
+        upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
+        span = 0.5 * voronoi[s, j + 1]
+        if j >= first:
+            span += 0.5 * voronoi[s, j]
+        res = ti.max(res, ti.abs(gb + gt) * span / scale)
+    return res
+
+
+@ti.func
+def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.template()):
+    """Solve strand s's symmetric tridiagonal system on rows lo..hi in place (rhs <- H^-1 rhs,
+    diag <- the pivots D of H = L D L^T). Returns (1 if every pivot is positive, else 0;
+    rhs . H^-1 rhs = sum y_j^2 / D_j, the Newton decrement squared)."""
+    positive = 1
+    decrement = 0.0
+    for j in range(lo, hi + 1):
+        if j > lo:
+            w = upper[s, j - 1] / diag[s, j - 1]
+            diag[s, j] -= w * upper[s, j - 1]
+            rhs[s, j] -= w * rhs[s, j - 1]
+        if not (diag[s, j] > 0.0):
+            positive = 0
+            break
+        decrement += rhs[s, j] * rhs[s, j] / diag[s, j]
+    if positive:
+        for r in range(hi - lo + 1):
+            j = hi - r
+            nxt = 0.0
+            if j < hi:
+                nxt = upper[s, j] * rhs[s, j + 1]
+            rhs[s, j] = (rhs[s, j] - nxt) / diag[s, j]
+    return positive, decrement
+
+
+@ti.func
+def line_search(s, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.template(),
+                kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                rest_twist: ti.template(), voronoi: ti.template(), k, step: ti.template()):
+    """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
+    at pi/2) that decreases the energy by ARMIJO alpha decrement, or that changes it by less than
+    its rounding when the predicted decrease is below it. Returns the accepted alpha times the
+    largest |step| [rad] (0: no step found, theta unchanged)."""
+    n = hi + 2  # lo is both the first free edge and the first bending node
+    largest = 0.0
+    for j in range(lo, hi + 1):
+        largest = ti.max(largest, ti.abs(step[s, j]))
+    alpha = 1.0
+    if largest > 0.5 * PI:
+        alpha = 0.5 * PI / largest
+    applied = 0.0
+    moved = 0.0
+    slack = 64.0 * ti.static(rounding_epsilon()) * ti.abs(e0)
+    for _ in range(MAX_HALVINGS):
+        for j in range(lo, hi + 1):
+            theta[s, j] -= (alpha - applied) * step[s, j]
+        applied = alpha
+        e1 = theta_energy(s, n, lo, bishop_u, bishop_v, kb, theta, rest_kappa,
+                          rest_twist, voronoi, k)
+        predicted = alpha * decrement
+        if e1 <= e0 - ARMIJO * predicted or (predicted <= slack and e1 <= e0 + slack):
+            moved = alpha * largest
+            break
+        alpha *= 0.5
+    if moved == 0.0:
+        for j in range(lo, hi + 1):
+            theta[s, j] += applied * step[s, j]
+    return moved
+
+
+@ti.func
+def strand_twist_quasistatic(s, clamp: ti.template(), node_count: ti.template(),
+                             bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                             theta: ti.template(), rest_kappa: ti.template(),
+                             rest_twist: ti.template(), voronoi: ti.template(),
+                             stiffness: ti.template(), tol, max_iterations, grad: ti.template(),
+                             diag: ti.template(), upper: ti.template()):
+    """Newton with line search on strand s's free angles (see the module doc). Returns
+    (iterations, scaled residual when it stopped, CONVERGED / STALLED / CAPPED)."""
+    n = node_count[s]
+    k = stiffness[s]
+    first = ti.static(first_node(clamp))
+    it = 0
+    res = 0.0
+    status = CONVERGED
+    while True:
+        res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                              rest_twist, voronoi, k, grad, diag, upper)
+        if res < tol:
+            break
+        if it >= max_iterations:
+            status = CAPPED
+            break
+        e0 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
+                          voronoi, k)
+        positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
+        if not positive:  # indefinite: a descent direction from the clamped bending diagonal
+            assemble_newton(s, n, first, 1, bishop_u, bishop_v, kb, theta, rest_kappa,
+                            rest_twist, voronoi, k, grad, diag, upper)
+            positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
+        moved = line_search(s, first, n - 2, e0, decrement, bishop_u, bishop_v, kb, theta,
+                            rest_kappa, rest_twist, voronoi, k, grad)
+        it += 1
+        largest_angle = 0.0
+        for j in range(first, n - 1):
+            largest_angle = ti.max(largest_angle, ti.abs(theta[s, j]))
+        if moved <= 4.0 * ti.static(rounding_epsilon()) * (1.0 + largest_angle):
+            # nothing representable is left to gain: the rounding floor of this precision
+            res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                  rest_twist, voronoi, k, grad, diag, upper)
+            if res >= tol:
+                status = STALLED
+            break
+    return it, res, status
+
+
+@ti.func
+def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.template(),
+                     kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                     rest_twist: ti.template(), voronoi: ti.template(), k):
     """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are."""
     u = bishop_u[s, j]
     v = bishop_v[s, j]
@@ -118,8 +237,9 @@ def kmoch_edge_angle(s, j, n, bishop_u: ti.template(), bishop_v: ti.template(), 
         best_energy = 0.0
         for c in ti.static(range(3)):
             angle = base + (c - 1) * PI
-            e, _, _ = edge_bend_theta_terms(s, j, n, angle, bishop_u, bishop_v, kb, rest_kappa, voronoi, k)
-            e += local_twist_energy(s, j, n, angle, theta, rest_twist, voronoi, k.z)
+            e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
+                                            voronoi, k)
+            e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
             if c == 0 or e < best_energy:
                 best = angle
                 best_energy = e
@@ -127,37 +247,27 @@ def kmoch_edge_angle(s, j, n, bishop_u: ti.template(), bishop_v: ti.template(), 
 
 
 @ti.func
-def strand_twist_kmoch(s, node_count: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
-                       kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                       rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
-                       theta_new: ti.template()):
+def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bishop_u: ti.template(),
+                       bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
+                       rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
+                       stiffness: ti.template(), theta_new: ti.template()):
     """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles)."""
     n = node_count[s]
-    for j in range(1, n - 1):
-        theta_new[s, j] = kmoch_edge_angle(s, j, n, bishop_u, bishop_v, kb, theta, rest_kappa,
+    first = ti.static(first_node(clamp))
+    for j in range(first, n - 1):
+        theta_new[s, j] = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
                                            rest_twist, voronoi, stiffness[s])
-    for j in range(1, n - 1):
+    for j in range(first, n - 1):
         theta[s, j] = theta_new[s, j]
 
 
-@ti.kernel
-def kmoch_twist_angles(node_count: Ints1, bishop_u: Vec3s2, bishop_v: Vec3s2, kb: Vec3s2,
-                       theta: Scalars2, rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2,
-                       stiffness: Vec4s1, theta_new: Scalars2):
-    """Kmoch's update of every free edge's angle (the root edge keeps its own); theta_new
-    [S, N-1] is scratch. One thread per strand."""
-    for s in range(node_count.shape[0]):
-        strand_twist_kmoch(s, node_count, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
-                           voronoi, stiffness, theta_new)
-
-
 @ti.func
-def local_twist_energy(s, j, n, angle, theta: ti.template(), rest_twist: ti.template(),
+def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: ti.template(),
                        voronoi: ti.template(), gj):
     """Twist energy of nodes j and j+1 with theta^j = angle and the neighbours' angles as they are."""
     energy = 0.0
-    if j >= 1:
-        m = angle - theta[s, j - 1] - rest_twist[s, j]
+    if j >= first:
+        m = angle - theta[s, j] + node_twist(s, j, theta, rest_twist)
         energy += gj * m * m * 0.5 / voronoi[s, j]
     if j + 1 <= n - 2:
         m = theta[s, j + 1] - angle - rest_twist[s, j + 1]

@@ -14,14 +14,14 @@ LENGTH = 1.0
 
 
 def clamped_beam(n_segments, slope=None):
-    """A horizontal beam along +x clamped at the origin: the clamped root edge straddles the
-    clamp (its midpoint is at x = 0), so the free length beyond the clamp is exactly LENGTH.
+    """A horizontal beam of length LENGTH along +x clamped at the origin, its root node (the
+    clamp sits at the groomed root: no allowance for the segment length).
     `slope(s)` optionally bends it to the angle theta(s) [rad] (edge lengths stay exact)."""
-    ds = LENGTH / (n_segments - 0.5)
-    s_mid = -ds / 2 + ds * (np.arange(n_segments) + 0.5)  # arc length at edge midpoints
-    theta = np.zeros(n_segments) if slope is None else slope(np.clip(s_mid, 0.0, None))
+    ds = LENGTH / n_segments
+    s_mid = ds * (np.arange(n_segments) + 0.5)  # arc length at edge midpoints
+    theta = np.zeros(n_segments) if slope is None else slope(s_mid)
     steps = ds * np.stack([np.cos(theta), np.zeros_like(theta), np.sin(theta)], axis=1)
-    nodes = np.vstack([[-ds / 2, 0.0, 0.0], [-ds / 2, 0.0, 0.0] + np.cumsum(steps, axis=0)])
+    nodes = np.vstack([[0.0, 0.0, 0.0], np.cumsum(steps, axis=0)])
     return th.Groom.from_polylines(nodes)
 
 
@@ -152,7 +152,7 @@ def test_constraints_hold_and_roots_follow_a_moving_head():
         stats = sim.stats(reset=True)
         x = sim.positions()
         rotation, translation = shaking_head(sim.time)
-        assert np.abs(x[:, :2] - (rest[:, :2] @ rotation.T + translation)).max() < 1e-12
+        assert np.abs(x[:, 0] - (rest[:, 0] @ rotation.T + translation)).max() < 1e-12  # the clamped root node
         for s in range(3):
             n = groom.node_counts[s]
             lengths = np.linalg.norm(np.diff(x[s, :n], axis=0), axis=1)
