@@ -5,24 +5,34 @@ A groom modelled under gravity sags further the moment gravity is switched on if
 the unloaded rest shape. The elastic force of a discrete rod is affine in the rest material
 curvatures wbar (taichi_hair.rod): at fixed positions x and material angles theta,
 F(x; wbar) = F0 + J wbar. `sag_free` asks, strand by strand, for the wbar nearest the groom's own
-rest curvature wbar0 such that the groomed pose is a static equilibrium with the root edge
+rest curvature wbar0 such that the groomed pose is a static equilibrium with the root node
 clamped and the edges inextensible:
 
     F0 + J wbar + m g + sum_j T_j grad_j + sum_k mu_k n_k = 0   on every free node,
 
-T_j the tension [N] of free edge j (its force on the nodes is T_j along the unit tangent: the
+T_j the tension [N] of edge j (its force on the nodes is T_j along the unit tangent: the
 inextensibility constraint's multiplier), mu_k >= 0 [N] a normal contact force at node k along
-the collider's outward normal n_k where the node lies within the head's margin. J is probed
-with the simulator's own force kernel (4 N launches for all strands at once: one rest-curvature
-component set to 1 on every strand), so the balance holds for exactly the forces the simulation
-applies. Each strand then solves one regularised least-squares problem
+the collider's outward normal n_k where the node lies within the head's margin.
+
+The clamp is the simulator's (taichi_hair.rod; `_Layout` says which nodes and edges are what):
+only node 0 rides on the head, and it is a bending and twisting node whose previous "edge" is
+the clamp (the head-carried root frame, material angle 0), its Voronoi length half the first
+edge. So the free nodes are 1..n-1, the bending nodes (rest-curvature unknowns) are 0..n-2 with
+both (node, edge-view) pairs of wbar variable (node 0's clamp-side pair too), every edge 0..n-2
+carries a tension (edge 0 pulls on node 1 only) and every edge's material angle is free. A
+pinned root is a hinge, which cannot carry the moment of the strand's weight: no balance exists
+and `sag_free` refuses it.
+
+J is probed with the simulator's own force kernel (4 N launches for all strands at once: one
+rest-curvature component set to 1 on every strand), so the balance holds for exactly the forces
+the simulation applies. Each strand then solves one regularised least-squares problem
 
     min |A z - b|^2 / w0^2 + alpha^2 |W (wbar - wbar0)|^2,   mu >= 0,
 
 rows scaled by the strand's mean nodal weight w0, W the energy weights sqrt(EI / (4 l_i)) of the
 bending term (so "nearest" means least bending energy between the two rest shapes), solved by a
-small active-set NNLS (Lawson-Hanson, free variables always passive). The 3 (n-2) equations have
-5 (n-2) + contacts unknowns, so an exact balance exists unless the contact signs forbid it; the
+small active-set NNLS (Lawson-Hanson, free variables always passive). The 3 (n-1) equations have
+5 (n-1) + contacts unknowns, so an exact balance exists unless the contact signs forbid it; the
 regulariser picks the smallest change.
 
 Twist: the material frames enter w = (kb . m2, -kb . m1), so the balance is set up at the angles
@@ -31,11 +41,13 @@ angles theta0 (where a simulation starts): the balance is solved at theta0, and 
 "quasistatic" the rest twist is then chosen so that dE/dtheta = 0 there too (the twist moment
 T_j = GJ (theta_j - theta_{j-1} - mbar_j) / l_j must carry the bending term's torque from the tip
 down: T_j = T_{j+1} - dE_bend/dtheta_j, T_{n-1} = 0, one backward sweep), so the quasistatic
-update leaves the angles where they are. Letting the angles move instead finds equilibria that
-are saddles of the twist energy (measured: a curly strand drifting away exponentially, doubling
-every 0.5 s). "kmoch" turns the major axis to the curvature binormals (geometry alone decides
-the angle; the rest curvature only picks the branch theta or theta +- pi): the solve alternates
-balance and twist update until the angles stop moving (`iterations` rounds at most). The
+update leaves the angles where they are (the sweep runs down to edge 0: node 0's twist
+theta_0 - 0 - mbar_0 is taken against the clamp). Letting the angles move instead finds
+equilibria that are saddles of the twist energy (measured: a curly strand drifting away
+exponentially, doubling every 0.5 s). "kmoch" turns the major axis to the curvature binormals
+(geometry alone decides the angle; the rest curvature only picks the branch theta or
+theta +- pi): the solve alternates balance and twist update until the angles stop moving
+(`iterations` rounds at most). The
 residual in the report is measured afterwards, at the final angles, with forces from the
 simulator and only the tensions and contact forces solved: an independent check of the balance.
 
@@ -57,15 +69,57 @@ import numpy as np
 
 from .groom import Groom
 from .materials import Material, per_strand_materials, stiffness_table
+from .pins import ROOT_MODES
+from .rod import first_node
 from .scene import ColliderUnion, Head
 from .runtime import precision
 from .twist import TWIST_MODES
 
-CLAMPED_NODES = 2  # the root edge's two nodes ride on the head
 ANGLE_TOLERANCE = 1e-7  # [rad]: the twist update no longer moves the angles
 # a smallest eigenvalue below -this x (nodal weight / segment length) is a saddle, not a minimum
 # (the scale gravity's destabilising stiffness has); float32 force differences are noisier
 SADDLE_TOLERANCE = {"float64": 1e-3, "float32": 1e-2}
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Which nodes and edges of an n-node strand the balance treats as what, from the
+    simulator's root mode (taichi_hair.rod.first_node). With a clamped root (the only mode a
+    balance exists for): node 0 is held; the free nodes 1..n-1 carry the force balance, the
+    contacts and the position Hessian; the bending nodes 0..n-2 carry the rest-curvature
+    unknowns (4 components each); every edge touching a free node, 0..n-2, carries a tension;
+    the free edges 0..n-2 (node 0 twists against the clamp) carry the twist balance and the
+    twist Hessian."""
+
+    held: int  # nodes 0..held-1 ride on the head
+    first_bending: int  # the first node carrying bending and twist = the first free edge
+
+    @classmethod
+    def of(cls, model) -> "_Layout":
+        if not model.clamp:
+            raise ValueError("sag_free needs a clamped root: a pinned root is a hinge, which "
+                             "cannot carry the moment of the strand's weight (no balance exists)")
+        return cls(held=1, first_bending=first_node(model.clamp))
+
+    def free_nodes(self, n: int) -> slice:
+        return slice(self.held, n)
+
+    def n_free(self, n: int) -> int:
+        return n - self.held
+
+    def bending_nodes(self, n: int) -> slice:
+        return slice(self.first_bending, n - 1)
+
+    def n_bending(self, n: int) -> int:
+        return n - 1 - self.first_bending
+
+    def tension_edges(self, n: int) -> range:
+        """Edges with a free node (edge j joins nodes j and j + 1)."""
+        return range(self.held - 1, n - 1)
+
+    def free_edges(self, n: int) -> slice:
+        """Edges whose material angle is free (twist balance and Hessian)."""
+        return slice(self.first_bending, n - 1)
 
 
 @dataclass(frozen=True)
@@ -140,7 +194,8 @@ class SagFreeReport:
 def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | None = None, *,
              twist: str = "quasistatic", regularization: float = 1e-5, max_turning_deg: float = 90.0,
              max_relative_residual: float = 0.01, contact_tolerance: float = 5e-4,
-             iterations: int = 6, strands=None, keep_saddles: bool = False) -> tuple[Groom, SagFreeReport]:
+             iterations: int = 6, strands=None, keep_saddles: bool = False,
+             root: str = "clamped") -> tuple[Groom, SagFreeReport]:
     """Rest curvatures that hold `groom` in place under `gravity` [m/s^2].
 
     Returns (groom with `rest_curvature` set, SagFreeReport). The new groom has the same
@@ -156,7 +211,8 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
     (or a boolean mask [S]) of the strands to make sag-free; the others keep the rest shape
     measured on their groomed positions (default: all). keep_saddles: return the balancing
     rest shape even where the balance is a saddle (report.fell_back stays all False; for
-    inspection: such a strand leaves the groomed pose at once).
+    inspection: such a strand leaves the groomed pose at once). root: the Simulator's root mode;
+    only "clamped" (its default) can hold a strand up: "pinned" raises ValueError.
 
     Simulate the result with the same twist mode. For round or nearly round hair twist="none"
     is the robust choice: under "quasistatic" the angles are free to roll, and a strand whose
@@ -166,22 +222,23 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
     """
     started = time.perf_counter()
     g = _check_inputs(groom, material, gravity, head, twist, regularization, max_turning_deg,
-                      max_relative_residual, contact_tolerance, iterations)
+                      max_relative_residual, contact_tolerance, iterations, root)
     chosen = _strand_mask(strands, groom.n_strands)
-    sim = _probe_simulator(groom, material, twist)
+    sim = _probe_simulator(groom, material, twist, root)
+    layout = _Layout.of(sim.model)
     twist0 = sim.model.rest_twist.to_numpy().astype(np.float64)
     wbar0 = sim.model.rest_kappa.to_numpy().astype(np.float64)
     problem = _Problem(groom, sim, g, wbar0, regularization,
                        _energy_weights(groom, per_strand_materials(material, groom.n_strands),
                                        sim.model.voronoi.to_numpy()),
-                       _contacts(groom, head, contact_tolerance))
+                       _contacts(groom, head, contact_tolerance, layout), layout)
     limit = 2.0 * math.tan(math.radians(max_turning_deg) / 2.0)
     wbar, clipped, converged, rounds = wbar0, np.zeros(groom.n_strands, dtype=bool), False, 0
     for rounds in range(1, iterations + 1):
         if twist == "kmoch":
             sim.update_twist()
         with single_threaded_blas():
-            wbar = problem.solve(_linearise(sim), wbar)
+            wbar = problem.solve(_linearise(sim, layout), wbar)
         wbar, clipped = _clip(wbar, limit)
         wbar[~chosen], clipped[~chosen] = wbar0[~chosen], False
         _set_rest_curvature(sim, wbar)
@@ -195,14 +252,15 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
             break
     rest_twist = None
     if twist == "quasistatic":
-        rest_twist = _balance_twist(groom, sim)
+        rest_twist = _balance_twist(groom, sim, layout)
         rest_twist[~chosen] = twist0[~chosen]
         _set_rest_twist(sim, rest_twist)
-    torsion = (_twist_hessian_min(groom, sim) > 0.0 if twist == "quasistatic"
+    torsion = (_twist_hessian_min(groom, sim, layout) > 0.0 if twist == "quasistatic"
                else np.ones(groom.n_strands, dtype=bool))
     with single_threaded_blas():
-        residual, weight, contact_force, multipliers = _verify(groom, sim, g, problem.contacts)
-        shape = _position_hessian_min(groom, sim, multipliers, problem.contacts, g) > -SADDLE_TOLERANCE[precision()]
+        residual, weight, contact_force, multipliers = _verify(groom, sim, g, problem.contacts, layout)
+        shape = _position_hessian_min(groom, sim, multipliers, problem.contacts, g,
+                                      layout) > -SADDLE_TOLERANCE[precision()]
     # a balance that is a saddle is worthless (the strand leaves it at once): such a strand
     # keeps its groomed rest shape (it sags, but stays put where it sags), flagged in the report
     fallback = chosen & ~clipped & ~(torsion & shape) & (not keep_saddles)
@@ -213,15 +271,15 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
             rest_twist[fallback] = twist0[fallback]
             _set_rest_twist(sim, rest_twist)
         with single_threaded_blas():
-            residual, weight, contact_force, _ = _verify(groom, sim, g, problem.contacts)
+            residual, weight, contact_force, _ = _verify(groom, sim, g, problem.contacts, layout)
     report = _report(groom, wbar, wbar0, clipped, torsion | ~chosen, shape | ~chosen, fallback, chosen,
                      residual, weight, contact_force, problem.contacts, max_relative_residual, twist,
                      rounds, converged, time.perf_counter() - started)
     return groom.with_rest_curvature(wbar, rest_twist), report
 
 
-def _twist_hessian_min(groom, sim):
-    """Smallest eigenvalue [S] of d^2E/dtheta^2 over the free edges 1..n-2, relative to the
+def _twist_hessian_min(groom, sim, layout):
+    """Smallest eigenvalue [S] of d^2E/dtheta^2 over the free edges (0..n-2), relative to the
     twist stiffness GJ / l. The Hessian is tridiagonal (an edge's angle meets its neighbours' in
     one twist and one bending term), so three central differences of dE/dtheta, each moving every
     third edge of every strand, give all of it."""
@@ -246,32 +304,38 @@ def _twist_hessian_min(groom, sim):
     gj = sim.model.stiffness.to_numpy()[:, 2].astype(np.float64)
     out = np.zeros(s_count)
     for s, n in enumerate(groom.node_counts):
-        m = n - 2
-        h = np.diag(hess[s, 1:n - 1, 1]) + np.diag(hess[s, 2:n - 1, 0], -1) + np.diag(hess[s, 1:n - 2, 2], 1)
-        scale = gj[s] / voronoi[s, 1:n - 1].mean()
-        out[s] = np.linalg.eigvalsh(0.5 * (h + h.T))[0] / scale if m else 1.0
+        free = layout.free_edges(n)
+        block = hess[s, free]  # rows of the free edges; their sub/super entries couple free edges
+        if not len(block):
+            out[s] = 1.0
+            continue
+        h = np.diag(block[:, 1]) + np.diag(block[1:, 0], -1) + np.diag(block[:-1, 2], 1)
+        scale = gj[s] / voronoi[s, free].mean()  # edge j's twist node j: l_0 is half the first edge
+        out[s] = np.linalg.eigvalsh(0.5 * (h + h.T))[0] / scale
     return out
 
 
-def _balance_twist(groom, sim):
+def _balance_twist(groom, sim, layout):
     """Rest twist [S, N] (not yet set on sim) that makes dE/dtheta = 0 on every free edge at the
     simulator's current angles: dE/dtheta_j is affine in the rest twist, d/dmbar_j of it is
     -GJ / l_j on edge j and +GJ / l_j on edge j-1, so the change dmbar_j = l_j / GJ * sum_{k>=j}
-    g_k cancels the gradient g exactly (edge 0 is clamped: no equation)."""
+    g_k cancels the gradient g exactly. Free edges 0..n-2: node 0's twist is against the clamp
+    (angle 0, no edge -1 to balance), so its rest twist mbar_0 is the sweep's last unknown."""
     grad = sim.theta_gradient().astype(np.float64)  # [S, N-1]
     voronoi = sim.model.voronoi.to_numpy().astype(np.float64)
     gj = sim.model.stiffness.to_numpy()[:, 2].astype(np.float64)
     rest_twist = sim.model.rest_twist.to_numpy().astype(np.float64)
     for s, n in enumerate(groom.node_counts):
-        tail = np.cumsum(grad[s, 1:n - 1][::-1])[::-1]  # sum_{k >= j} g_k, j = 1..n-2
-        rest_twist[s, 1:n - 1] += voronoi[s, 1:n - 1] / gj[s] * tail
+        free = layout.free_edges(n)  # edge j's twist lives on node j
+        tail = np.cumsum(grad[s, free][::-1])[::-1]  # sum_{k >= j} g_k over the free edges
+        rest_twist[s, free] += voronoi[s, free] / gj[s] * tail
     return rest_twist
 
 
 # ---- inputs ---------------------------------------------------------------------------------
 
 def _check_inputs(groom, material, gravity, head, twist, regularization, max_turning_deg,
-                  max_relative_residual, contact_tolerance, iterations):
+                  max_relative_residual, contact_tolerance, iterations, root):
     if not isinstance(groom, Groom):
         raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
     per_strand_materials(material, groom.n_strands)  # raises naming `material`
@@ -285,6 +349,12 @@ def _check_inputs(groom, material, gravity, head, twist, regularization, max_tur
         raise ValueError(f"head must be a taichi_hair.Head or None, got {type(head).__name__}")
     if twist not in TWIST_MODES:
         raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
+    if root not in ROOT_MODES:
+        raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
+    if root != "clamped":
+        raise ValueError(f"root must be 'clamped' for sag_free, got {root!r}: a pinned root is a "
+                         "hinge, which cannot carry the moment of the strand's weight, so no rest "
+                         "shape holds a pinned strand up")
     for name, value, low, high, unit in (
             ("regularization", regularization, 0.0, math.inf, ""),
             ("max_turning_deg", max_turning_deg, 0.0, 180.0, "degrees"),
@@ -324,12 +394,12 @@ def _is_number(value):
 
 # ---- the linear map wbar -> elastic force -----------------------------------------------------
 
-def _probe_simulator(groom, material, twist):
+def _probe_simulator(groom, material, twist, root):
     """A simulator of the groom used only for its kernels (no gravity: forces are elastic)."""
     from .simulator import Simulator
     with warnings.catch_warnings():  # its time step is never used
         warnings.simplefilter("ignore", RuntimeWarning)
-        return Simulator(groom, material, gravity=(0.0, 0.0, 0.0), twist=twist)
+        return Simulator(groom, material, gravity=(0.0, 0.0, 0.0), twist=twist, root=root)
 
 
 def _set_rest_curvature(sim, wbar):
@@ -342,10 +412,10 @@ def _set_rest_twist(sim, rest_twist):
     twist.from_numpy(rest_twist.astype(twist.to_numpy().dtype))
 
 
-def _linearise(sim):
+def _linearise(sim, layout):
     """The balance's derivatives at the simulator's current rest curvature and angles: force
     [S, N, 3] N and jac_w [S, N, 3, N, 4] = dforce / dwbar (exact: the force is affine in wbar;
-    one launch per (node, component), all strands at once)."""
+    one launch per (bending node, component), all strands at once)."""
     kappa = sim.model.rest_kappa
     current = kappa.to_numpy()
     s_count, n_max = sim.groom.n_strands, sim.groom.max_nodes
@@ -353,7 +423,7 @@ def _linearise(sim):
     probe = np.zeros_like(current)
     kappa.from_numpy(probe)
     f0 = sim.elastic_forces()
-    for i in range(1, n_max - 1):
+    for i in range(*layout.bending_nodes(n_max).indices(n_max)):
         for c in range(4):
             probe[:, i, c] = 1.0
             kappa.from_numpy(probe)
@@ -365,7 +435,8 @@ def _linearise(sim):
 
 def _energy_weights(groom, materials, voronoi):
     """W [S, N, 4]: sqrt(EI / (4 l_i)) for each rest-curvature component (EI1 pairs with
-    components 0 and 2, EI2 with 1 and 3), so |W dw|^2 is the bending energy of a change dw."""
+    components 0 and 2, EI2 with 1 and 3), so |W dw|^2 is the bending energy of a change dw;
+    l_i the model's Voronoi length (the clamped root node's is half the first edge)."""
     table = stiffness_table(materials)
     ei = np.stack([table["ei1"], table["ei2"], table["ei1"], table["ei2"]], axis=1)  # [S, 4]
     return np.sqrt(ei[:, None, :] / (4.0 * voronoi[:, :, None]))
@@ -373,7 +444,7 @@ def _energy_weights(groom, materials, voronoi):
 
 # ---- contacts -----------------------------------------------------------------------------
 
-def _contacts(groom, head, tolerance):
+def _contacts(groom, head, tolerance, layout):
     """Per strand: (node indices [K], outward unit normals [K, 3]) of free nodes within a
     collider's margin + tolerance at the groomed pose. As in the simulation, a collider holding
     the strand's root (root inside it) does not touch that strand."""
@@ -396,7 +467,7 @@ def _contacts(groom, head, tolerance):
     normals = normals.reshape(close.shape + (3,))
     out = []
     for s, n in enumerate(groom.node_counts):
-        nodes = np.flatnonzero(close[s, CLAMPED_NODES:n]) + CLAMPED_NODES
+        nodes = np.flatnonzero(close[s, layout.free_nodes(n)]) + layout.held
         nrm = normals[s, nodes]
         nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         out.append((nodes, nrm))
@@ -446,9 +517,10 @@ class _Problem:
     """The per-strand regularised balance (module docstring), linearised about the current
     rest curvature at the simulator's current angles."""
 
-    def __init__(self, groom, sim, g, wbar0, regularization, weights, contacts):
+    def __init__(self, groom, sim, g, wbar0, regularization, weights, contacts, layout):
         self.groom, self.sim, self.g, self.wbar0 = groom, sim, g, wbar0
         self.regularization, self.weights, self.contacts = regularization, weights, contacts
+        self.layout = layout
         self.mass = sim.model.mass.to_numpy().astype(np.float64)
 
     def solve(self, lin, wbar):
@@ -457,49 +529,52 @@ class _Problem:
         for s, n in enumerate(self.groom.node_counts):
             a, b, nonneg = self._system(s, n, lin, wbar)
             z = nnls(a, b, nonneg)
-            wbar[s, 1:n - 1] += z[: 4 * (n - 2)].reshape(n - 2, 4)
+            m = self.layout.n_bending(n)
+            wbar[s, self.layout.bending_nodes(n)] += z[: 4 * m].reshape(m, 4)
         return wbar
 
     def _system(self, s, n, lin, wbar):
-        """(a, b, nonneg) of strand s: columns dwbar, tensions, contact forces; rows force
-        balance then the regulariser."""
-        m = n - 2
-        free = slice(CLAMPED_NODES, n)
+        """(a, b, nonneg) of strand s: columns dwbar (bending nodes), tensions, contact forces;
+        rows force balance (free nodes) then the regulariser."""
+        layout = self.layout
+        free, bending = layout.free_nodes(n), layout.bending_nodes(n)
+        rows, m = 3 * layout.n_free(n), 4 * layout.n_bending(n)
         scale = max(self.mass[s, free].mean() * 9.81, 1e-300)  # reference nodal weight [N]
-        side = np.hstack([_tension_columns(self.groom.positions[s, :n]),
-                          _contact_columns(n, *self.contacts[s])]) / scale
-        jw = lin["jac_w"][s, free, :, 1:n - 1, :].reshape(3 * m, 4 * m) / scale
+        side = np.hstack([_tension_columns(self.groom.positions[s, :n], layout),
+                          _contact_columns(n, *self.contacts[s], layout)]) / scale
+        jw = lin["jac_w"][s, free, :, bending, :].reshape(rows, m) / scale
         rhs = -(lin["force"][s, free] + self.mass[s, free, None] * self.g).reshape(-1) / scale
-        w = self.weights[s, 1:n - 1].reshape(-1)
+        w = self.weights[s, bending].reshape(-1)
         alpha = self.regularization * np.median(np.linalg.norm(jw, axis=0)) / np.median(w)
         a = np.vstack([np.hstack([jw, side]),
-                       np.hstack([np.diag(alpha * w), np.zeros((4 * m, side.shape[1]))])])
-        b = np.concatenate([rhs, alpha * w * (self.wbar0[s, 1:n - 1] - wbar[s, 1:n - 1]).reshape(-1)])
+                       np.hstack([np.diag(alpha * w), np.zeros((m, side.shape[1]))])])
+        b = np.concatenate([rhs, alpha * w * (self.wbar0[s, bending] - wbar[s, bending]).reshape(-1)])
         nonneg = np.zeros(a.shape[1], dtype=bool)
         nonneg[a.shape[1] - len(self.contacts[s][0]):] = True
         return a, b, nonneg
 
 
-def _tension_columns(x):
-    """[3 (n-2), n-2]: the force of a unit tension [N] in free edge j = 1..n-2 on the free
-    nodes 2..n-1: +t_j on node j, -t_j on node j+1 (node 1 is clamped)."""
+def _tension_columns(x, layout):
+    """[3 F, E]: the force of a unit tension [N] in each tension edge j (edge 0..n-2) on the F
+    free nodes (1..n-1): +t_j on node j, -t_j on node j+1 (held nodes have no rows)."""
     n = len(x)
     e = np.diff(x, axis=0)
     t = e / np.linalg.norm(e, axis=1, keepdims=True)
-    cols = np.zeros((n - 2, 3, n - 2))
-    for col, j in enumerate(range(1, n - 1)):
-        if j >= CLAMPED_NODES:
-            cols[j - CLAMPED_NODES, :, col] = t[j]
-        cols[j + 1 - CLAMPED_NODES, :, col] = -t[j]
-    return cols.reshape(3 * (n - 2), n - 2)
+    edges = layout.tension_edges(n)
+    cols = np.zeros((layout.n_free(n), 3, len(edges)))
+    for col, j in enumerate(edges):
+        if j >= layout.held:
+            cols[j - layout.held, :, col] = t[j]
+        cols[j + 1 - layout.held, :, col] = -t[j]
+    return cols.reshape(3 * layout.n_free(n), len(edges))
 
 
-def _contact_columns(n, nodes, normals):
-    """[3 (n-2), K]: a unit normal force [N] at each contact node."""
-    cols = np.zeros((n - 2, 3, len(nodes)))
+def _contact_columns(n, nodes, normals, layout):
+    """[3 F, K]: a unit normal force [N] at each contact node (F free nodes)."""
+    cols = np.zeros((layout.n_free(n), 3, len(nodes)))
     for k, (i, nrm) in enumerate(zip(nodes, normals)):
-        cols[i - CLAMPED_NODES, :, k] = nrm
-    return cols.reshape(3 * (n - 2), len(nodes))
+        cols[i - layout.held, :, k] = nrm
+    return cols.reshape(3 * layout.n_free(n), len(nodes))
 
 
 def nnls(a, b, nonneg, max_rounds=None):
@@ -543,29 +618,31 @@ def _clip(wbar, limit):
 
 # ---- verification and report ----------------------------------------------------------------
 
-def _verify(groom, sim, g, contacts):
+def _verify(groom, sim, g, contacts, layout):
     """Net force [S] N on the free nodes at the final rest curvature and angles, with only the
     tensions and contact forces solved; the free weight [S] N, the contact force [S] N and per
-    strand the multipliers (tensions of edges 1..n-2, then contact forces) [N]."""
+    strand the multipliers (tensions of the tension edges 0..n-2, then contact forces) [N]."""
     f = sim.elastic_forces()
     mass = sim.model.mass.to_numpy().astype(np.float64)
     residual, weight, contact = (np.zeros(groom.n_strands) for _ in range(3))
     multipliers = []
     for s, n in enumerate(groom.node_counts):
-        free = slice(CLAMPED_NODES, n)
+        free = layout.free_nodes(n)
         rhs = -(f[s, free] + mass[s, free, None] * g).reshape(-1)
-        a = np.hstack([_tension_columns(groom.positions[s, :n]), _contact_columns(n, *contacts[s])])
+        a = np.hstack([_tension_columns(groom.positions[s, :n], layout),
+                       _contact_columns(n, *contacts[s], layout)])
+        tensions = len(layout.tension_edges(n))
         nonneg = np.zeros(a.shape[1], dtype=bool)
-        nonneg[n - 2:] = True
+        nonneg[tensions:] = True
         z = nnls(a, rhs, nonneg)
         residual[s] = np.linalg.norm(a @ z - rhs)
         weight[s] = mass[s, free].sum() * np.linalg.norm(g)
-        contact[s] = z[n - 2:].sum()
+        contact[s] = z[tensions:].sum()
         multipliers.append(z)
     return residual, weight, contact, multipliers
 
 
-def _position_hessian_min(groom, sim, multipliers, contacts, g):
+def _position_hessian_min(groom, sim, multipliers, contacts, g, layout):
     """Smallest eigenvalue [S] of the energy's Hessian on the constraint manifold at the groomed
     pose (angles held), in units of the strand's mean nodal weight over its mean segment
     length: negative means the balance is a saddle, and
@@ -579,7 +656,7 @@ def _position_hessian_min(groom, sim, multipliers, contacts, g):
     lengths = sim.model.rest_length.to_numpy()
     step = (1e-6 if precision() == "float64" else 1e-3) * float(np.median(lengths[lengths > 0]))
     hess = np.zeros((s_count, n_max, 3, n_max, 3))
-    for i in range(CLAMPED_NODES, n_max):
+    for i in range(*layout.free_nodes(n_max).indices(n_max)):
         for c in range(3):
             forces = []
             for sign in (1.0, -1.0):
@@ -590,37 +667,39 @@ def _position_hessian_min(groom, sim, multipliers, contacts, g):
             hess[:, :, :, i, c] = -(forces[0] - forces[1]) / (2.0 * step)
     sim.set_positions(x0)
     out = np.ones(s_count)
+    held = layout.held
     for s, n in enumerate(groom.node_counts):
-        m = 3 * (n - 2)
-        h = hess[s, 2:n, :, 2:n, :].reshape(m, m)
+        free = layout.free_nodes(n)
+        m = 3 * layout.n_free(n)
+        h = hess[s, free, :, free, :].reshape(m, m)
         h = 0.5 * (h + h.T)
         e = np.diff(x0[s, :n], axis=0)
         norm = np.linalg.norm(e, axis=1)
         t = e / norm[:, None]
         rows = []
-        for j in range(1, n - 1):  # edge j joins nodes j and j+1; node 1 is clamped
-            block = multipliers[s][j - 1] * (np.eye(3) - np.outer(t[j], t[j])) / norm[j]
+        for col, j in enumerate(layout.tension_edges(n)):  # edge j joins nodes j and j+1
+            block = multipliers[s][col] * (np.eye(3) - np.outer(t[j], t[j])) / norm[j]
             row = np.zeros(m)
             for node, sign in ((j, -1.0), (j + 1, 1.0)):
-                if node >= CLAMPED_NODES:
-                    k = 3 * (node - CLAMPED_NODES)
+                if node >= held:
+                    k = 3 * (node - held)
                     row[k:k + 3] = sign * t[j]
             rows.append(row)
-            a, b = 3 * (j - CLAMPED_NODES), 3 * (j + 1 - CLAMPED_NODES)
+            a, b = 3 * (j - held), 3 * (j + 1 - held)
             h[b:b + 3, b:b + 3] += block
-            if j >= CLAMPED_NODES:
+            if j >= held:
                 h[a:a + 3, a:a + 3] += block
                 h[a:a + 3, b:b + 3] -= block
                 h[b:b + 3, a:a + 3] -= block
         for node, normal in zip(*contacts[s]):
             row = np.zeros(m)
-            row[3 * (node - CLAMPED_NODES):3 * (node - CLAMPED_NODES) + 3] = normal
+            row[3 * (node - held):3 * (node - held) + 3] = normal
             rows.append(row)
         _, sv, vt = np.linalg.svd(np.array(rows))
         rank = int(np.count_nonzero(sv > 1e-10 * sv.max()))
         basis = vt[rank:].T
         eig = np.linalg.eigvalsh(basis.T @ h @ basis)
-        mass = sim.model.mass.to_numpy()[s, CLAMPED_NODES:n].mean()
+        mass = sim.model.mass.to_numpy()[s, free].mean()
         out[s] = eig[0] / max(mass * np.linalg.norm(g) / norm.mean(), 1e-300)
     return out
 

@@ -79,7 +79,7 @@ class Simulator:
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
                  drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "quasistatic",
                  projection_tol: float | None = None, projection_iterations: int = 100,
-                 twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
+                 twist_tol: float | None = None, twist_iterations: int = 100, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped"):
@@ -327,7 +327,8 @@ class Simulator:
     def _diverged(self, h, bad_step):
         bad = np.flatnonzero(bad_step >= 0)
         first = bad[np.argmin(bad_step[bad])]
-        cap_hits = int(self.state.counters.to_numpy()[:, COUNTERS["projection_cap_hits"]].sum())
+        counters = self.state.counters.to_numpy()
+        cap_hits = int(counters[:, COUNTERS["projection_cap_hits"]].sum())
         t = self.time + (bad_step[first] + 1) * h
         step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
         for name, copy in self._snapshot.items():
@@ -338,10 +339,16 @@ class Simulator:
         self.update_frames()
         residual = float(self.state.residuals.to_numpy()[first, 0])
         cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual)
+        twist_failed = counters[first, COUNTERS["twist_cap_hits"]] + counters[first, COUNTERS["twist_stalls"]]
+        if twist_failed:
+            cause = (f"the twist solve of strand {first} did not converge (scaled residual "
+                     f"{self.state.residuals.to_numpy()[first, 1]:.3g} after {self.twist_iterations} "
+                     f"iterations): its forces would not be the energy's gradient; raise "
+                     f"twist_iterations or twist_tol")
         raise SimulationDiverged(
             f"simulation diverged at step {step} (t = {t:.4g} s): strand {first} "
-            f"({len(bad)} strand(s) in all) went non-finite, faster than {self.control.max_speed:g} m/s "
-            f"or out of its inextensibility constraints; "
+            f"({len(bad)} strand(s) in all) went non-finite, faster than {self.control.max_speed:g} m/s, "
+            f"out of its inextensibility constraints or out of twist equilibrium; "
             f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
             step=step, strand=int(first))
 
@@ -416,9 +423,11 @@ class Simulator:
             "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
             "twist": self.twist,
         }
-        if self.twist == "quasistatic":
+        if self.twist != "none":  # kmoch solves round strands exactly too
             report["twist_iterations_max"] = int(counters[:, COUNTERS["twist_iterations"]].max())
             report["twist_residual_max"] = float(residuals[:, 1].max())
+            report["twist_cap_hits"] = int(counters[:, COUNTERS["twist_cap_hits"]].sum())
+            report["twist_stalls"] = int(counters[:, COUNTERS["twist_stalls"]].sum())
         if reset:
             self._reset_counters()
         return report
@@ -492,14 +501,22 @@ class Simulator:
 
     def update_twist(self) -> dict:
         """Solve the free edges' material angles with the chosen twist mode. Returns
-        {"iterations", "residual"}: the quasistatic solve's max over strands (the scaled residual
-        max |dE/dtheta| l / max(EI1, GJ)); for "kmoch" and "none", 1 and 0 iterations, residual NaN."""
+        {"iterations", "residual", "cap_hits", "stalls"}: the quasistatic solve's max over strands
+        (the scaled residual max |dE/dtheta| l / max(EI1, GJ)) and how many strands ended at the
+        iteration cap or stalled above tolerance at the rounding floor; "kmoch" reports its exact
+        solve of round strands, 1 iteration and residual NaN when every strand is elliptic;
+        "none": 0 iterations, residual NaN."""
         self._reset_counters()
         run_twist_update(self.model, self.state, self.plan)
-        if self.twist == "quasistatic":
-            return {"iterations": int(self.state.counters.to_numpy()[:, COUNTERS["twist_iterations"]].max()),
-                    "residual": float(self.state.residuals.to_numpy()[:, 1].max())}
-        return {"iterations": int(self.twist == "kmoch"), "residual": float("nan")}
+        counters = self.state.counters.to_numpy()
+        exact = [m.ellipticity == 1.0 for m in self.model.materials]
+        report = {"iterations": int(counters[:, COUNTERS["twist_iterations"]].max()),
+                  "residual": float(self.state.residuals.to_numpy()[:, 1].max()),
+                  "cap_hits": int(counters[:, COUNTERS["twist_cap_hits"]].sum()),
+                  "stalls": int(counters[:, COUNTERS["twist_stalls"]].sum())}
+        if self.twist == "none" or (self.twist == "kmoch" and not any(exact)):
+            report.update(iterations=int(self.twist == "kmoch"), residual=float("nan"))
+        return report
 
     # ---- energies and forces ----------------------------------------------------------
     def strand_elastic_energy(self) -> np.ndarray:

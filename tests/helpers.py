@@ -24,9 +24,9 @@ def central_difference_gradient(energy, x0, nodes, h=1e-6):
 
 
 def perturbed(x, scale, seed, keep_root=True):
-    """x plus Gaussian noise of `scale` metres; the clamped root edge stays where it is."""
+    """x plus Gaussian noise of `scale` metres; the clamped root node stays where it is."""
     rng = np.random.default_rng(seed)
     out = x + scale * rng.standard_normal(x.shape)
     if keep_root:
-        out[:, :2] = x[:, :2]
+        out[:, 0] = x[:, 0]
     return out
