@@ -10,6 +10,12 @@ a warm-up run of the same configuration, so compile time is excluded):
   helix       a curly elliptic human hair (L 0.2 m, curl radius 1 cm, pitch 2 cm, ellipticity 1.5)
               hanging under gravity, at rest after damping, vs a fine solve of the same strand
               (4x the finest segment count, float64, quasistatic twist); error = |tip - tip_ref| / L.
+  curl down / curl horizontal
+              a round curled rod (curl radius 5 cm, pitch 5 cm, 3 turns, r 1 cm, E 1e7, G E/3,
+              rho 1300) hanging with its helix axis down / horizontal, at rest after damping, vs the
+              continuum Kirchhoff rod with intrinsic curvature and twist (taichi_hair.continuum,
+              numpy shooting, independent of the simulator); error = |tip - tip_ref| / |drop|,
+              drop = the reference tip's displacement under gravity.
 Each precision runs in its own process (Taichi fixes it at init), as `python -m taichi_hair.reports
 accuracy --worker --precision float32`, and the rows are merged.
 
@@ -47,6 +53,10 @@ REPORT_MARK = "-- taichi_hair report json --"
 BEAM_LENGTH = 1.0
 HELIX_LENGTH, HELIX_CURL, HELIX_PITCH = 0.2, 0.01, 0.02
 HELIX_OMEGA = 10.0  # [rad/s] damping rate of the helix's drag 2 rho A omega (it settles in < 1 s)
+CURL_RADIUS, CURL_PITCH, CURL_TURNS = 0.05, 0.05, 3
+CURL_LENGTH = CURL_TURNS * math.hypot(2 * math.pi * CURL_RADIUS, CURL_PITCH)
+CURL_AXES = {"down": (0.0, 0.0, -1.0), "horizontal": (1.0, 0.0, 0.0)}
+CURL_OMEGA, CURL_SETTLED, CURL_MAX_TIME = 12.0, 1e-9, 6.0  # drag rate [rad/s]; tip motion [m] per 0.1 s
 CANTILEVER_TIME, HELIX_TIME, FREQUENCY_PERIODS = 6.0, 2.0, 2.25
 CONSTRAINT_FAIL = 1e-2  # a measured max |len^2/rest^2 - 1| above this (0.5 % strain) is garbage: FAIL
 
@@ -102,23 +112,22 @@ def first_mode_slope(s, length: float):
 
 # ---- the strands ------------------------------------------------------------------------------------
 def clamped_beam(n_segments: int, slope=None):
-    """Horizontal beam along +x whose clamped root edge straddles the clamp (midpoint at x = 0), so
-    the free length is exactly BEAM_LENGTH; slope(s) [rad] optionally bends it (exact edge lengths)."""
-    ds = BEAM_LENGTH / (n_segments - 0.5)
-    s_mid = -ds / 2 + ds * (np.arange(n_segments) + 0.5)
-    theta = np.zeros(n_segments) if slope is None else slope(np.clip(s_mid, 0.0, None))
+    """Horizontal beam of length BEAM_LENGTH along +x clamped at its root node at the origin;
+    slope(s) [rad] optionally bends it (exact edge lengths)."""
+    ds = BEAM_LENGTH / n_segments
+    theta = np.zeros(n_segments) if slope is None else slope(ds * (np.arange(n_segments) + 0.5))
     steps = ds * np.stack([np.cos(theta), np.zeros_like(theta), np.sin(theta)], axis=1)
-    return Groom.from_polylines(np.vstack([[-ds / 2, 0, 0], [-ds / 2, 0, 0] + np.cumsum(steps, axis=0)]))
+    return Groom.from_polylines(np.vstack([[0.0, 0, 0], np.cumsum(steps, axis=0)]))
 
 
 def clamped_helix(n_segments: int):
-    """The curly test strand hanging along -z: a helix (radius HELIX_CURL, pitch HELIX_PITCH) with
-    nodes at arc length s = -ds/2 + k ds, so the clamped root edge straddles s = 0 and the free
-    length is HELIX_LENGTH at every resolution (the tip is the same material point)."""
-    ds = HELIX_LENGTH / (n_segments - 0.5)
+    """The curly test strand hanging along -z: a helix (radius HELIX_CURL, pitch HELIX_PITCH) of
+    length HELIX_LENGTH clamped at its root node, nodes at arc length s = k ds (the tip is the
+    same material point at every resolution)."""
+    ds = HELIX_LENGTH / n_segments
     rise = HELIX_PITCH / (2 * math.pi)
     omega = 1.0 / math.hypot(HELIX_CURL, rise)
-    angle = omega * (-ds / 2 + ds * np.arange(n_segments + 1))
+    angle = omega * ds * np.arange(n_segments + 1)
     return Groom.from_polylines(np.stack([HELIX_CURL * (np.cos(angle) - 1), HELIX_CURL * np.sin(angle),
                                           -rise * angle], axis=1))
 
@@ -131,6 +140,27 @@ def helix_material() -> Material:
     return Material(ellipticity=1.5)  # human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300
 
 
+def curl_material() -> Material:
+    return Material(youngs_modulus=1e7, shear_modulus=1e7 / 3, radius=0.01, density=1300.0)
+
+
+def curl_groom(n_segments: int, axis: str) -> Groom:
+    """The curled rod of the `curl` rows, its helix axis along CURL_AXES[axis], root at the origin."""
+    return Groom.curly(roots=[[0.0, 0.0, 0.0]], directions=[CURL_AXES[axis]], length=CURL_LENGTH,
+                       n_nodes=n_segments + 1, curl_radius=CURL_RADIUS, curl_pitch=CURL_PITCH)
+
+
+@functools.lru_cache(maxsize=None)
+def curl_reference(axis: str) -> dict:
+    """Continuum tip [m] under gravity and its drop [m] (displacement from the unloaded tip)."""
+    from .continuum import hanging_helix
+    m = curl_material()
+    stiffness = (m.bending_stiffness[0], m.bending_stiffness[1], m.twist_stiffness)
+    ref = hanging_helix(CURL_LENGTH, CURL_RADIUS, CURL_PITCH, CURL_AXES[axis], stiffness, m.linear_density)
+    unloaded = hanging_helix(CURL_LENGTH, CURL_RADIUS, CURL_PITCH, CURL_AXES[axis], stiffness, 0.0)
+    return {"tip": ref["tip"].tolist(), "drop": float(np.linalg.norm(ref["tip"] - unloaded["tip"]))}
+
+
 # ---- accuracy runs ----------------------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
 class AccuracySweep:
@@ -141,6 +171,7 @@ class AccuracySweep:
     cantilever_segments: tuple = (12, 25, 50, 100, 200)
     frequency_segments: tuple = (12, 25, 50, 100, 200)
     helix_segments: tuple = (12, 25, 50)
+    curl_segments: tuple = (25, 50, 100, 200)
     base_dt: float = 1e-3
     dts: tuple = (0.25e-3, 0.5e-3, 2e-3)
     dt_segments: int = 25
@@ -151,7 +182,7 @@ class AccuracySweep:
 
 FULL_SWEEP = AccuracySweep()
 QUICK_SWEEP = AccuracySweep(cantilever_segments=(12, 25, 50), frequency_segments=(12, 25),
-                            helix_segments=(12, 25), dts=(0.5e-3, 2e-3), dt_segments=12, repeats=1)
+                            helix_segments=(12, 25), curl_segments=(25, 50), dts=(0.5e-3, 2e-3), dt_segments=12, repeats=1)
 
 
 def _simulator(groom, material, **options):
@@ -247,6 +278,30 @@ def helix_row(n: int, dt: float, twist: str, repeats: int = 1) -> dict:
                 tip=timed[0].positions()[0, -1].tolist(), error=None)
 
 
+def _settle_until_still(sim):
+    """Run in 0.1 s chunks until the tip moves less than CURL_SETTLED [m] per chunk (or
+    CURL_MAX_TIME). Returns the last chunk's tip motion [m]."""
+    tip, motion = sim.positions()[0, -1], math.inf
+    while motion > CURL_SETTLED and sim.time < CURL_MAX_TIME:
+        sim.run(0.1, progress=False)
+        motion, tip = float(np.linalg.norm(sim.positions()[0, -1] - tip)), sim.positions()[0, -1]
+    return motion
+
+
+def curl_row(n: int, dt: float, axis: str, repeats: int = 1) -> dict:
+    """The curled rod hanging with its axis `axis`, at rest, against the continuum."""
+    m = curl_material()
+
+    def make():
+        return _simulator(curl_groom(n, axis), m, dt=dt, drag=2 * m.linear_density * CURL_OMEGA,
+                          twist="quasistatic")
+    timed = _timed(make, _settle_until_still, repeats)
+    ref = curl_reference(axis)
+    tip = timed[0].positions()[0, n]
+    return _row(f"curl {axis}", n, dt, "quasistatic", timed, settle=timed[2] / CURL_LENGTH,
+                error=float(np.linalg.norm(tip - ref["tip"]) / ref["drop"]))
+
+
 def helix_reference(sweep: AccuracySweep) -> dict:
     """Fine solve (float64 process): reference_factor x the finest helix count, quasistatic twist."""
     n = sweep.reference_factor * max(sweep.helix_segments)
@@ -259,6 +314,11 @@ def accuracy_rows(sweep: AccuracySweep, log=None) -> list:
     rows = []
     cases = (("cantilever", sweep.cantilever_segments, ("none",)),
              ("frequency", sweep.frequency_segments, ("none",)), ("helix", sweep.helix_segments, sweep.twists))
+    for axis in CURL_AXES:  # segment counts only: the reference is static
+        for n in sweep.curl_segments:
+            rows.append(curl_row(n, sweep.base_dt, axis, sweep.repeats))
+            if log:
+                log(f"curl {axis} {n} segments: error {rows[-1]['error']:.3g}, wall {rows[-1]['wall_s']:.2f} s")
     for case, segments, twists in cases:
         runs = [(n, sweep.base_dt) for n in segments] + [(sweep.dt_segments, dt) for dt in sweep.dts]
         for twist in twists:
@@ -325,7 +385,7 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
 
 
 CASE_COLOURS = {("cantilever", "none"): 0, ("frequency", "none"): 2, ("helix", "quasistatic"): 1,
-                ("helix", "kmoch"): 3}
+                ("helix", "kmoch"): 3, ("curl down", "quasistatic"): 5, ("curl horizontal", "quasistatic"): 6}
 
 
 def accuracy_figure(result: dict):
@@ -355,13 +415,14 @@ def accuracy_figure(result: dict):
 def format_accuracy(result: dict) -> str:
     ref = result["helix_reference"]
     lines = [f"taichi_hair accuracy report ({result['arch']}; {result['timing']})",
-             f"{'case':<10} {'segs':>4} {'dt ms':>5} {'twist':<11} {'precision':<9} {'error':>9} "
+             f"{'case':<15} {'segs':>4} {'dt ms':>5} {'twist':<11} {'precision':<9} {'error':>9} "
              f"{'wall s':>7} {'steps':>6} {'subst':>5} {'settle/L':>9}"]
     for r in result["rows"]:
         settle = f"{r['settle']:9.1e}" if r.get("settle") is not None else f"{'-':>9}"
-        lines.append(f"{r['case']:<10} {r['segments']:4d} {r['dt'] * 1e3:5.2f} {r['twist']:<11} {r['precision']:<9} "
+        lines.append(f"{r['case']:<15} {r['segments']:4d} {r['dt'] * 1e3:5.2f} {r['twist']:<11} {r['precision']:<9} "
                      f"{r['error']:9.2e} {r['wall_s']:7.2f} {r['steps']:6d} {r['substeps']:5d} {settle}")
-    lines += ["error: cantilever |tip - elastica| / L; frequency |f / f_beam - 1|; helix |tip - tip_ref| / L",
+    lines += ["error: cantilever |tip - elastica| / L; frequency |f / f_beam - 1|; helix |tip - tip_ref| / L; "
+              "curl |tip - tip_continuum| / |drop_continuum|",
               f"helix reference: {ref['segments']} segments, float64, quasistatic, dt {ref['dt'] * 1e3:g} ms "
               f"({ref['substeps']} substeps), {ref['wall_s']:.1f} s; settle/L: tip motion over the last 0.1 s",
               f"written: {result['json']}, {result['png']}"]

@@ -15,7 +15,8 @@ from taichi_hair import reports
 from taichi_hair.stability import stable_time_step
 
 TINY = reports.AccuracySweep(cantilever_segments=(12, 25, 50), frequency_segments=(12,), helix_segments=(12,),
-                             dts=(2e-3,), dt_segments=12, reference_factor=2, repeats=1)
+                             curl_segments=(25, 50, 100), dts=(2e-3,), dt_segments=12, reference_factor=2,
+                             repeats=1)
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +46,7 @@ def test_cantilever_error_falls_with_refinement(accuracy):
     rows = {r["segments"]: r for r in accuracy["rows"] if r["case"] == "cantilever" and r["dt"] == TINY.base_dt}
     errors = [rows[n]["error"] for n in (12, 25, 50)]
     assert errors[0] > errors[1] > errors[2] > 0
-    assert errors[0] / errors[2] > 8  # the straddled clamp gives second order: about 16 here
+    assert errors[0] / errors[2] > 8  # the clamp at the root node gives second order: about 11 here
     assert all(r["settle"] < 1e-4 for r in rows.values())  # at rest when measured
 
 
@@ -66,9 +67,22 @@ def test_curly_case_has_both_twist_modes_with_finite_errors(accuracy):
         assert r["settle"] < 1e-6 and r["tip"][2] < rest_tip[2] - 0.02 * reports.HELIX_LENGTH
 
 
+def test_curled_rod_converges_to_the_continuum_at_second_order(accuracy):
+    """The curl rows against the continuum Kirchhoff rod (taichi_hair.continuum): halving the
+    segment length divides the tip error by about 4, with the helix axis down and horizontal."""
+    for axis in reports.CURL_AXES:
+        rows = {r["segments"]: r for r in accuracy["rows"] if r["case"] == f"curl {axis}"}
+        errors = [rows[n]["error"] for n in (25, 50, 100)]
+        print(f"\ncurl {axis}: tip error / drop {[f'{e:.4f}' for e in errors]}, "
+              f"ratios {errors[0] / errors[1]:.2f}, {errors[1] / errors[2]:.2f}")
+        assert all(r["settle"] < 1e-8 for r in rows.values())  # at rest when measured
+        assert errors[0] / errors[1] > 3.3 and errors[1] / errors[2] > 3.5
+        assert errors[2] < 0.025
+
+
 def test_accuracy_writes_json_and_a_non_blank_png(accuracy):
     saved = json.loads(open(accuracy["json"]).read())
-    assert len(saved["rows"]) == len(accuracy["rows"]) == 3 + 1 + 1 + 1 + 2 * 2
+    assert len(saved["rows"]) == len(accuracy["rows"]) == 3 + 1 + 1 + 1 + 2 * 2 + 2 * 3  # + curl rows
     image = read_png(accuracy["png"])
     assert image is not None and image.shape == (600, 960, 3)
     assert image.astype(float).var() > 0
