@@ -13,7 +13,7 @@ from . import arrays
 from .frames import update_frames, update_material_frames
 from .groom import Groom
 from .progress import ProgressBar
-from .rod import elastic_forces, strand_elastic_energy, theta_gradient
+from .rod import strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
 from .state import build
@@ -25,7 +25,7 @@ from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
 from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
-                   run_twist_update, strand_mechanical_energy)
+                   run_twist_update, strand_mechanical_energy, total_elastic_forces)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
@@ -97,7 +97,8 @@ class Simulator:
         self.touch = tuple(touch)
         self.root_motion = root_motion
         self.stable_dt = stable_time_step(groom, self.model.materials, drag,
-                                          _positive("stability_factor", stability_factor, "", upper=2.0))
+                                          _positive("stability_factor", stability_factor, "", upper=2.0),
+                                          kmoch=twist == "kmoch")
         self.stable_dt = min([self.stable_dt] + [_grab_bound(self.model, g, stability_factor)
                                                  for g in self.touch if isinstance(g, Grab)])
         self.control, facts = build_control(_vector3("gravity", gravity),
@@ -207,7 +208,8 @@ class Simulator:
         """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
         x = self.positions()
         start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
-        bound = stable_time_step(start, self.model.materials, self.control.drag, stability_factor)
+        bound = stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
+                                 kmoch=self.twist == "kmoch")
         if bound < self.stable_dt:
             self.stable_dt = bound
             self.substeps = self._substeps_for(strict)
@@ -428,6 +430,8 @@ class Simulator:
             report["twist_residual_max"] = float(residuals[:, 1].max())
             report["twist_cap_hits"] = int(counters[:, COUNTERS["twist_cap_hits"]].sum())
             report["twist_stalls"] = int(counters[:, COUNTERS["twist_stalls"]].sum())
+        if self.twist == "kmoch":
+            report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
         if reset:
             self._reset_counters()
         return report
@@ -554,11 +558,11 @@ class Simulator:
     def elastic_forces(self) -> np.ndarray:
         """Elastic forces [S, N, 3] in newtons: minus the gradient of `elastic_energy` with the
         material angles held fixed (holonomy term included). At twist equilibrium (after
-        `update_twist` with "quasistatic") this is also the total force."""
-        st, md = self.state, self.model
-        elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
-                       md.rest_kappa, md.voronoi, md.stiffness, st.force)
-        return st.force.to_numpy().astype(np.float64)
+        `update_twist` with "quasistatic") this is also the total force. With twist="kmoch" the
+        angles of elliptic strands follow the centreline by Kmoch's rule, and this is minus the
+        total derivative of E(x, theta_kmoch(x)) (after `update_twist`)."""
+        total_elastic_forces(self.model, self.state, self.twist)
+        return self.state.force.to_numpy().astype(np.float64)
 
     def theta_gradient(self) -> np.ndarray:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""

@@ -59,7 +59,8 @@ class RodModel:
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
 COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
-            "twist_iterations": 3, "bad_step": 4, "twist_cap_hits": 5, "twist_stalls": 6}
+            "twist_iterations": 3, "bad_step": 4, "twist_cap_hits": 5, "twist_stalls": 6,
+            "twist_branch_switches": 7}
 
 
 @dataclass
@@ -86,7 +87,7 @@ class RodState:
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
     strand_count: object  # [S] int
-    counters: object  # [S, 7] int, see COUNTERS
+    counters: object  # [S, 8] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
 
 

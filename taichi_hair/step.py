@@ -26,7 +26,7 @@ from .linalg import thomas_solve
 from .pins import strand_carry_root_frame, strand_place_pins
 from .rod import elastic_forces, strand_elastic_forces
 from .state import COUNTERS
-from .twist import CAPPED, STALLED, strand_twist_kmoch, strand_twist_quasistatic
+from .twist import CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch, strand_twist_quasistatic
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
@@ -38,9 +38,10 @@ FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed ste
 HELD_DAMPING = 1e-6
 # a twist solve that stalled at the rounding floor above this scaled residual is a failed step
 TWIST_FAILED_ABOVE = 1e-3
-PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL = (COUNTERS[k] for k in (
-    "projection_iterations", "projection_cap_hits", "projection_stalls", "twist_iterations", "bad_step",
-    "twist_cap_hits", "twist_stalls"))
+PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWITCH = (
+    COUNTERS[k] for k in ("projection_iterations", "projection_cap_hits", "projection_stalls",
+                          "twist_iterations", "bad_step", "twist_cap_hits", "twist_stalls",
+                          "twist_branch_switches"))
 
 
 @dataclass(frozen=True)
@@ -244,8 +245,9 @@ def strand_twist(s, twist_mode: ti.template(), clamp: ti.template(), tol, max_it
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
         elif ti.static(twist_mode == 1):
-            strand_twist_kmoch(s, clamp, node_count, bishop_u, bishop_v, kb, theta, rest_kappa,
-                               rest_twist, voronoi, stiffness, a)
+            counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, node_count, bishop_u, bishop_v,
+                                                            kb, theta, rest_kappa, rest_twist,
+                                                            voronoi, stiffness, a)
         strand_material_frames(s, node_count, theta, bishop_u, bishop_v, m1, m2)
     return failed
 
@@ -286,6 +288,9 @@ def advance_strands(
                 prev = 1
             strand_elastic_forces(s, not pinned_root, x, node_count, kb, m1, m2, root_t, root_u,
                                   rest_kappa, voronoi, stiffness, force)
+            if ti.static(twist_mode == 1):
+                strand_kmoch_forces(s, not pinned_root, x, node_count, bishop_u, bishop_v, kb, theta,
+                                    root_t, rest_kappa, rest_twist, voronoi, stiffness, force)
             if ti.static(external or touch):
                 strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
                                        voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)
@@ -454,8 +459,7 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
     stage = timers if timers is not None else (lambda name: nullcontext())
     user = c.user_force is not None
     with stage("forces"):
-        elastic_forces(not plan.pinned_root, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t,
-                       st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
+        total_elastic_forces(model, state, plan.twist)
         if plan.external_forces or plan.touch or user:
             external_and_user_forces(c.time, c.drag, plan.external_forces, plan.wind_field, plan.touch,
                                      user, md.node_count, md.mass, md.voronoi, st.x, st.v, c.loads,
@@ -495,6 +499,17 @@ def update_twist_kernel(twist_tol: float, twist_iterations: int, twist_mode: ti.
                         bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a,
                         b, c, counters, residuals):
             counters[s, BAD] = 0
+
+
+def total_elastic_forces(model, state, twist: str) -> None:
+    """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
+    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands)."""
+    md, st = model, state
+    elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
+                   md.rest_kappa, md.voronoi, md.stiffness, st.force)
+    if twist == "kmoch":
+        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                     st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 
 def run_twist_update(model, state, plan: StepPlan):

@@ -24,9 +24,9 @@ Two modes (docs/model.md, "Twist"):
 
 import taichi as ti
 
-from .arrays import vec2
+from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2
 from .frames import material_directors
-from .rod import bend_terms, first_node, node_twist, twist_terms
+from .rod import add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_twist, twist_terms
 from .runtime import precision
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
@@ -231,6 +231,7 @@ def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.templ
         kv = kbn.dot(v)
         doubled += vec2(ku * ku - kv * kv, 2.0 * ku * kv)
     best = theta[s, j]
+    switched = 0
     if doubled.norm() > MIN_CURVATURE_SQ:
         eta = 0.5 * ti.atan2(doubled.y, doubled.x)
         base = eta + PI * ti.round((theta[s, j] - eta) / PI)
@@ -243,7 +244,8 @@ def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.templ
             if c == 0 or e < best_energy:
                 best = angle
                 best_energy = e
-    return best
+                switched = 1 if c != 1 else 0  # c = 1 is the branch nearest the old angle
+    return best, switched
 
 
 @ti.func
@@ -251,14 +253,19 @@ def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bisho
                        bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
                        rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
                        stiffness: ti.template(), theta_new: ti.template()):
-    """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles)."""
+    """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles).
+    Returns how many edges switched branch (theta +- pi from the branch nearest the old angle)."""
     n = node_count[s]
     first = ti.static(first_node(clamp))
+    switches = 0
     for j in range(first, n - 1):
-        theta_new[s, j] = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
+        angle, switched = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
                                            rest_twist, voronoi, stiffness[s])
+        theta_new[s, j] = angle
+        switches += switched
     for j in range(first, n - 1):
         theta[s, j] = theta_new[s, j]
+    return switches
 
 
 @ti.func
@@ -273,3 +280,67 @@ def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: 
         m = theta[s, j + 1] - angle - rest_twist[s, j + 1]
         energy += gj * m * m * 0.5 / voronoi[s, j + 1]
     return energy
+
+
+@ti.func
+def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+                        bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                        theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
+                        rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
+                        force: ti.template()):
+    """force[s] -= sum_j dE/dtheta^j dtheta_kmoch^j/dx: with Kmoch's rule the angles are a
+    function of the centreline, so the force of E(x, theta_kmoch(x)) needs this term on top of
+    the fixed-angle gradient (docs/model.md, "Kmoch's rule and energy consistency"). Elliptic
+    strands only (round ones are solved to dE/dtheta = 0). With eta^j = arg(S_j) / 2,
+    S_j = sum_n z_n^2, z_n = kb_n . (u^j + i v^j) over the edge's end nodes n in {j, j+1}:
+    d eta^j = sum_n d kb_n . Im(z_n (u + i v) / S_j) - d Psi^j, the last term because the angle
+    is measured from the Bishop vector u^j, which turns with the holonomy."""
+    k = stiffness[s]
+    if k.x != k.y:
+        n = node_count[s]
+        first = ti.static(first_node(clamp))
+        suffix = 0.0
+        for r in range(n - 1 - first):
+            j = n - 2 - r
+            _, gb, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                             rest_kappa, voronoi, k)
+            gt, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+            g = gb + gt
+            suffix += g  # sum over free edges >= j: the coefficient of grad psi_j
+            e0, e1 = node_edges(s, j, x, root_t)
+            add_holonomy_gradient(s, j, e0, e1, kb[s, j], suffix, force)
+            u = bishop_u[s, j]
+            v = bishop_v[s, j]
+            total = vec2(0.0)
+            for node in ti.static(range(2)):
+                z = vec2(kb[s, j + node].dot(u), kb[s, j + node].dot(v))
+                total += vec2(z.x * z.x - z.y * z.y, 2.0 * z.x * z.y)
+            norm_sq = total.dot(total)
+            if ti.sqrt(norm_sq) > MIN_CURVATURE_SQ:  # else the rule keeps theta: no derivative
+                for node in ti.static(range(2)):
+                    i = j + node
+                    if i <= n - 2:  # the tip has no curvature
+                        z = vec2(kb[s, i].dot(u), kb[s, i].dot(v))
+                        q = vec2(z.x * total.x + z.y * total.y, z.y * total.x - z.x * total.y) / norm_sq
+                        a0, a1 = node_edges(s, i, x, root_t)
+                        add_kb_gradient(s, i, a0, a1, kb[s, i], -g * (q.x * v + q.y * u), force)
+
+
+@ti.func
+def node_edges(s, i, x: ti.template(), root_t: ti.template()):
+    """The two edge vectors at node i [m]; at node 0 the first is the clamp's direction."""
+    e0 = root_t[s]
+    if i >= 1:
+        e0 = x[s, i] - x[s, i - 1]
+    return e0, x[s, i + 1] - x[s, i]
+
+
+@ti.kernel
+def kmoch_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: Vec3s2,
+                 bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
+                 rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
+                 force: Vec3s2):
+    """strand_kmoch_forces for every strand (added to force [S, N] N). One thread per strand."""
+    for s in range(x.shape[0]):
+        strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+                            rest_kappa, rest_twist, voronoi, stiffness, force)

@@ -110,3 +110,78 @@ def test_shaken_elliptic_curls_never_hit_the_cap():
     stats = sim.stats()
     print(f"\nshaken curls: {stats}")
     assert stats["twist_cap_hits"] == 0 and stats["twist_residual_max"] < 1e-6
+
+
+def test_kmoch_forces_are_the_total_derivative_of_the_energy():
+    """Under Kmoch's rule the angles follow the centreline: the force must be minus the gradient
+    of E(x, theta_kmoch(x)), the rule applied (Jacobi, from the same old angles) at every x."""
+    groom, _, x0 = random_helices(12, seed=7)
+    materials = [th.Material(ellipticity=e) for e in (1.0, 1.3, 1.7, 2.5, 4.0, 1.5) * 2]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sim = th.Simulator(groom, materials, twist="kmoch")
+    sim.set_positions(x0)
+    sim.update_twist()
+    old = sim.material_angles()
+    sim.update_twist()
+    force = sim.elastic_forces()
+    h = 1e-8
+    grad = np.zeros_like(x0)
+    for i in range(groom.max_nodes):
+        for k in range(3):
+            for sign in (1.0, -1.0):
+                x = x0.copy()
+                x[:, i, k] += sign * h
+                sim.set_material_angles(old)
+                sim.set_positions(x)
+                sim.update_twist()
+                grad[:, i, k] += sign * sim.strand_elastic_energy() / (2 * h)
+    scale = np.abs(force).max(axis=(1, 2))
+    assert scale.min() > 1e-9
+    errors = np.abs(force + grad).max(axis=(1, 2)) / scale
+    print(f"\nKmoch's rule, worst relative error {errors.max():.2e} (round strands solved exactly)")
+    assert errors.max() <= 1e-6
+
+
+def swinging_curl(twist, ellipticity):
+    groom = th.Groom.curly(length=0.2, n_nodes=30, curl_radius=0.01, curl_pitch=0.02,
+                           directions=[[1, 0, 0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return th.Simulator(groom, th.Material(ellipticity=ellipticity), twist=twist, dt=1e-3)
+
+
+@pytest.mark.parametrize("ellipticity", [1.0, 1.5, 2.5, 4.0])
+def test_kmoch_gains_no_energy_beyond_the_integrators_drift(ellipticity):
+    """A horizontal curl falling and swinging under gravity without drag for 0.5 s: Kmoch's rule
+    against the quasistatic twist in the same run."""
+    swing = {}
+    for twist in ("quasistatic", "kmoch"):
+        sim = swinging_curl(twist, ellipticity)
+        e0, energies, kinetic = sim.total_energy(), [], 0.0
+        while sim.time < 0.5 - 1e-9:
+            sim.step(10)
+            energies.append(sim.total_energy())
+            kinetic = max(kinetic, sim.kinetic_energy())
+        swing[twist] = (max(energies) - e0, np.ptp(energies), sim.stats())
+    print(f"\nellipticity {ellipticity}: energy rise (J) quasistatic {swing['quasistatic'][0]:.2e}, "
+          f"kmoch {swing['kmoch'][0]:.2e}; range {swing['quasistatic'][1]:.2e} vs {swing['kmoch'][1]:.2e}; "
+          f"branch switches {swing['kmoch'][2]['twist_branch_switches']}; kinetic {kinetic:.2e} J")
+    assert kinetic > 5 * swing["kmoch"][1]  # it swings: peak kinetic energy well above the drift
+    assert swing["kmoch"][0] <= max(swing["quasistatic"][0], 0.0) + 1e-9
+    assert swing["kmoch"][1] <= 3 * swing["quasistatic"][1] + 1e-9
+    assert swing["kmoch"][2]["twist_branch_switches"] == 0
+
+
+def test_hanging_curl_settles_under_kmoch():
+    groom = swinging_curl("kmoch", 1.5).groom
+    material = th.Material(ellipticity=1.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sim = th.Simulator(groom, material, twist="kmoch", dt=1e-3, drag=2 * material.linear_density * 10)
+    sim.run(3.0, progress=False)
+    tip = sim.positions()[0, -1]
+    sim.run(0.1, progress=False)
+    motion = np.linalg.norm(sim.positions()[0, -1] - tip) / 0.2
+    print(f"\nKmoch's rule, hanging curl: tip motion over the last 0.1 s {motion:.1e} L")
+    assert motion < 1e-9
