@@ -58,7 +58,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
     their friction sees the motion relative to the moving head (head poses now / prev); hands
     sit at tool_points[tool_now] (tool_prev before the step). A collider that holds the strand's
     own root is skipped for that strand: pushing its nodes out would fight the clamped root
-    edge every step (a groom rooted inside a neck capsule, say). Returns the number of pushes."""
+    every step (a groom rooted inside a neck capsule, say). Returns the number of pushes."""
     pushes = 0
     root = x[s, 0]
     for c in range(n_analytic):

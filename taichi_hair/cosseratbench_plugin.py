@@ -14,8 +14,8 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
   the scenario and gets length L / n_elements, walked from the held end. Unstretched rods
   whose polyline chords fall short of L / n_elements get the same treatment, so the strand's
   length is always the scenario's unstretched length.
-- Held ends: a clamped start is taichi_hair's clamped root edge (its two nodes and its
-  material frame held), a pinned start is `root="pinned"`; a pinned end is `add_pin` on the
+- Held ends: a clamped start is taichi_hair's clamped root (node 0 and the clamp's material
+  frame held, bending from node 0), a pinned start is `root="pinned"`; a pinned end is `add_pin` on the
   last node, a clamped end `add_pin(..., clamp=True)` on the last edge. A rod whose start is
   free and end held is simulated from its end (nodes reversed and turned back on output). A
   driven clamped end (`Motion`) becomes the head motion of that strand's root.

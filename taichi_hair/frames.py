@@ -1,10 +1,10 @@
 """Reference and material frames of every edge, and curvature binormals of every node.
 
-Bishop frame: u^0 of the root edge is the head-carried reference u_ref moved by parallel
-transport from t_ref to the current root tangent (so a clamped root edge that follows the head
-gets exactly u^0 = R ubar^0), then u^j = P_{t^{j-1} -> t^j}(u^{j-1}), v^j = t^j x u^j.
+Bishop frame: u^0 of the root edge is the head-carried reference u_ref (the clamp's material
+direction) moved by parallel transport from t_ref to the current root tangent, then
+u^j = P_{t^{j-1} -> t^j}(u^{j-1}), v^j = t^j x u^j.
 Material frame: m1 = cos(theta) u + sin(theta) v, m2 = -sin(theta) u + cos(theta) v
-(DESIGN.md; the seed thesis' eq. 3.12 / 3.18 print the sign of m2 wrong).
+(docs/model.md; the seed thesis' eq. 3.12 / 3.18 print the sign of m2 wrong, 3.26 is right).
 """
 
 import taichi as ti

@@ -1,7 +1,7 @@
 """Grooms: the rest shapes of the guide strands.
 
 A groom is data: rest node positions [S, N, 3] in metres (node 0 of each strand is the root,
-the root edge is clamped to the head) and per-strand node counts [S], so strands of different
+clamped to the head) and per-strand node counts [S], so strands of different
 lengths load together (positions past a strand's count repeat its last node and are never
 read). Rest curvature and rest twist are not stored here: the simulator derives them from this
 shape (see `taichi_hair.state.build_model`), so an unloaded strand keeps its shape exactly.

@@ -2,7 +2,7 @@
 
 The cross-section is an ellipse of equal area to a circle of `radius`, with semi-axes
 a = r sqrt(e) (major, along the material direction m1) and b = r / sqrt(e) (minor), where e is
-the ellipticity a/b >= 1. Stiffnesses (DESIGN.md):
+the ellipticity a/b >= 1. Stiffnesses (docs/model.md):
     EI1 = E pi a^3 b / 4   [N m^2]  pairs with w1 = kb . m2 (bending about m2: the stiff axis)
     EI2 = E pi a b^3 / 4   [N m^2]  pairs with w2 = -kb . m1 (bending about m1: the soft axis)
     GJ  = G pi a^3 b^3 / (a^2 + b^2)   [N m^2]   torsional stiffness

@@ -2,7 +2,7 @@
 
 A pin gives its node infinite mass (inv_mass 0): symplectic Euler leaves it alone, the fast
 projection cannot move it, contacts and hair-hair interaction skip it, and after the Euler
-update it is put at its target, exactly as the clamped root edge is put on the head. A clip
+update it is put at its target, exactly as the root node is put on the head. A clip
 (clamp=True) pins the edge (node, node + 1): both nodes, the second at the first's target plus
 the edge vector the edge had when it was clipped (position and direction held; the edge's
 material angle is not: the twist solve still treats it as free).
@@ -12,14 +12,14 @@ Decisions (see also `Simulator.add_pin`):
   `move_pin` is reached at the end of that call, every substep of it placing the node at its
   share of the way (so move_pin once per frame gives the node the velocity (new - old) / frame
   time). Head-attached targets are interpolated in head coordinates and carried by the head
-  pose of every substep, like the root edges.
+  pose of every substep, like the root nodes.
 - Adding a pin at the node's current position does not move it; the next step gives the node
   the pin's velocity (zero for a still pin): a moving node is stopped, which can only take
   energy out. Releasing a pin restores the node's mass; it keeps the velocity of its last step.
 - Total energy counts a pinned node as the free node it was (its kinetic and gravitational
   energy), so adding and releasing a still pin leaves the total unchanged.
-- An edge whose two nodes are both held (a clip, two neighbouring pins, the clamped root edge)
-  is prescribed, not projected: the pins set its length (step.strand_project).
+- An edge whose two nodes are both held (a clip, two neighbouring pins, a pin on node 1 beside
+  the root) is prescribed, not projected: the pins set its length (step.strand_project).
 - Pins are not part of `save_state` checkpoints: scene scripts add them in `setup`.
 
 Device data, [S, N] per node: pin_mode (0 free, 1 world target, 2 head target), pin_start and
@@ -98,7 +98,7 @@ class PinTable:
     def __init__(self, model, root: str):
         self.model = model
         self.node_counts = np.asarray(model.groom.node_counts)
-        self.first_free = 1 if root == "pinned" else 2
+        self.first_free = 1  # node 0 rides on the head (clamped or pinned root)
         self.free_inv = model.inv_mass.to_numpy().astype(np.float64)
         self.free_inv_mass = arrays.scalars(self.free_inv.shape, self.free_inv)
         self.inv = self.free_inv.copy()  # host copy of model.inv_mass with the pins in
@@ -169,8 +169,7 @@ class PinTable:
             last = n - 2 if clamp else n - 1
             i = _index("node", i, last + 1)
             if i < self.first_free:
-                raise ValueError(f"node {i} of strand {s} rides on the head already (the "
-                                 f"{'clamped' if self.first_free == 2 else 'pinned'} root); "
+                raise ValueError(f"node {i} of strand {s} rides on the head already (the root); "
                                  f"node must be >= {self.first_free}")
             for node in (i, i + 1) if clamp else (i,):
                 if self.owner[s, node] >= 0 or (s, node) in seen:

@@ -47,9 +47,9 @@ equilibria that are saddles of the twist energy (measured: a curly strand drifti
 exponentially, doubling every 0.5 s). "kmoch" turns the major axis to the curvature binormals
 (geometry alone decides the angle; the rest curvature only picks the branch theta or
 theta +- pi): the solve alternates balance and twist update until the angles stop moving
-(`iterations` rounds at most). The
-residual in the report is measured afterwards, at the final angles, with forces from the
-simulator and only the tensions and contact forces solved: an independent check of the balance.
+(`iterations` rounds at most). The residual in the report is measured afterwards, at the final
+angles, with forces from the simulator and only the tensions and contact forces solved: an
+independent check of the balance.
 
 Reachability: a rest curvature |wbar| = 2 tan(phi / 2) means a rest turning angle phi at the
 node. Where the balance needs more than `max_turning_deg` the rest curvature is clipped to it
@@ -96,10 +96,16 @@ class _Layout:
 
     @classmethod
     def of(cls, model) -> "_Layout":
+        """The layout of `model` (a RodModel); ValueError for a pinned root."""
         if not model.clamp:
             raise ValueError("sag_free needs a clamped root: a pinned root is a hinge, which "
                              "cannot carry the moment of the strand's weight (no balance exists)")
-        return cls(held=1, first_bending=first_node(model.clamp))
+        layout = cls(held=1, first_bending=first_node(model.clamp))
+        inv_mass = model.inv_mass.to_numpy()
+        if np.any(inv_mass[:, :layout.held] != 0) or np.any(inv_mass[:, layout.held] == 0):
+            raise RuntimeError("sag_free's layout does not match the simulator's: expected nodes "
+                               f"0..{layout.held - 1} held (inv_mass 0) and node {layout.held} free")
+        return layout
 
     def free_nodes(self, n: int) -> slice:
         return slice(self.held, n)
@@ -423,7 +429,7 @@ def _linearise(sim, layout):
     probe = np.zeros_like(current)
     kappa.from_numpy(probe)
     f0 = sim.elastic_forces()
-    for i in range(*layout.bending_nodes(n_max).indices(n_max)):
+    for i in range(n_max)[layout.bending_nodes(n_max)]:
         for c in range(4):
             probe[:, i, c] = 1.0
             kappa.from_numpy(probe)
@@ -656,7 +662,7 @@ def _position_hessian_min(groom, sim, multipliers, contacts, g, layout):
     lengths = sim.model.rest_length.to_numpy()
     step = (1e-6 if precision() == "float64" else 1e-3) * float(np.median(lengths[lengths > 0]))
     hess = np.zeros((s_count, n_max, 3, n_max, 3))
-    for i in range(*layout.free_nodes(n_max).indices(n_max)):
+    for i in range(n_max)[layout.free_nodes(n_max)]:
         for c in range(3):
             forces = []
             for sign in (1.0, -1.0):

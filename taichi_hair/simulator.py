@@ -67,8 +67,8 @@ class Simulator:
     colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
     max_speed [m/s]: a node faster than this counts as a blow-up.
-    root: "clamped" (default: the root edge's two nodes ride on the head, its frame turns with
-        the head) or "pinned" (node 0 rides on the head, node 1 is free: the strand swings
+    root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
+        the head-carried root frame from node 0 on, docs/model.md "The clamp at the root") or "pinned" (node 0 rides on the head, node 1 is free: the strand swings
         freely about its root node. The root edge's reference director is parallel-transported
         in time from its previous direction each step; its material angle theta^0 stays held in
         that frame (the twist solve keeps it fixed), so the joint is free in bending and holds
@@ -220,7 +220,7 @@ class Simulator:
         return self._head
 
     def set_root_transform(self, rotation, translation) -> None:
-        """Move the head: the root edges follow the rigid transform x -> R x + t of the groom's
+        """Move the head: the roots follow the rigid transform x -> R x + t of the groom's
         rest pose. Their reference frames turn at once; the root nodes get there during the next
         step (with the velocity that implies). rotation: 3x3 proper rotation; translation [m]."""
         self._head = check_rigid_transform(rotation, translation)
@@ -543,7 +543,7 @@ class Simulator:
         return st.strand_scalar.to_numpy().astype(np.float64), self._potential.to_numpy().astype(np.float64)
 
     def kinetic_energy(self) -> float:
-        """Sum of 1/2 m |v|^2 over free nodes [J] (the head-driven root edge excluded)."""
+        """Sum of 1/2 m |v|^2 over free nodes [J] (the head-driven root node excluded)."""
         return float(self._mechanical()[0].sum())
 
     def gravity_energy(self) -> float:

@@ -151,7 +151,7 @@ def strand_project(s, tol, max_iterations, pins: ti.template(), node_count: ti.t
     tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of a
     residual already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow
     progress is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root,
-    pins) have infinite mass (inv_mass 0); an edge with both nodes held (the clamped root edge, a
+    pins) have infinite mass (inv_mass 0); an edge with both nodes held (a
     clip) is prescribed: its row is the identity with a zero right-hand side, outside the
     residual; with pins the diagonal is damped (HELD_DAMPING). Returns (iterations, final
     residual)."""
@@ -389,7 +389,7 @@ def integrate(h: float, pins: ti.template(), pinned_root: ti.template(), pin_f0:
               pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2, node_count: Ints1,
               inv_mass: Scalars2, force: Vec3s2, head: Vec3s2, root_frame: Vec3s2, v: Vec3s2, x: Vec3s2,
               x_prev: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
-    """Symplectic Euler, then the root edges onto head pose 1 and pinned nodes pin_f0 + pin_df
+    """Symplectic Euler, then the root nodes onto head pose 1 and pinned nodes pin_f0 + pin_df
     of the way to their end targets. One thread per strand."""
     for s in range(x.shape[0]):
         strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)

@@ -252,7 +252,7 @@ def test_bad_pin_input_names_the_parameter():
     with pytest.raises(ValueError, match="node"):
         sim.add_pin(0, 11)
     with pytest.raises(ValueError, match="node"):
-        sim.add_pin(0, 1)  # on the clamped root edge
+        sim.add_pin(0, 0)  # the root node rides on the head
     with pytest.raises(ValueError, match="node"):
         sim.add_pin(0, 10, clamp=True)  # no edge past the tip
     with pytest.raises(ValueError, match="target"):

@@ -47,8 +47,9 @@ def test_quasistatic_twist_balances_the_angles_too():
     fixed, report = th.sag_free(groom, th.Material(), twist="quasistatic")
     assert fixed.rest_twist is not None and report.torsion_stable.all()
     sim = th.Simulator(fixed, th.Material(), twist="quasistatic")
-    # dE/dtheta on the free edges (edge 0 is clamped to the root) vs a unit twist's GJ [J/rad]
-    assert np.abs(sim.theta_gradient()[:, 1:]).max() < 1e-6 * sim.model.stiffness.to_numpy()[0, 2]
+    # dE/dtheta on the free edges vs a unit twist's GJ [J/rad]: every edge, edge 0 included (the
+    # root node twists against the clamp, so edge 0's angle is free)
+    assert np.abs(sim.theta_gradient()).max() < 1e-6 * sim.model.stiffness.to_numpy()[0, 2]
     assert drift_after(fixed, 1.0, twist="quasistatic") < 1e-4 < drift_after(groom, 1.0, twist="quasistatic")
 
 
@@ -69,12 +70,38 @@ def test_rolling_instability_is_flagged(bend_radius, stable):
     sim = th.Simulator(fixed, th.Material(), twist="quasistatic")
     balance = sim.material_angles()
     nudged = balance.copy()
-    nudged[:, 1:] += 0.05 * np.random.default_rng(0).standard_normal(nudged[:, 1:].shape)
+    nudged += 0.05 * np.random.default_rng(0).standard_normal(nudged.shape)  # every edge is free
     sim.set_material_angles(nudged)
     sim.update_twist()
     moved = np.abs(sim.material_angles() - balance).max()
     print(f"\nbend radius {bend_radius}: angles settle {moved:.2e} rad from the balance")
     assert (moved < 1e-6) if stable else (moved > 0.5)
+
+
+def test_the_root_node_carries_the_root_moment():
+    # the clamp holds node 0 only and node 0 bends (its Voronoi length half the first edge): in
+    # a straight strand leaning out at 45 degrees, the rest curvature's moment EI |wbar_i| / l_i
+    # at every bending node 0..n-2 is the moment of the weight of the free nodes beyond it
+    n, length = 25, 0.2
+    groom = th.Groom.straight(roots=np.zeros((1, 3)), directions=DIAGONAL, length=length, n_nodes=n)
+    material = th.Material()
+    fixed, _ = th.sag_free(groom, material, twist="none")
+    step = length / (n - 1)
+    s = step * np.arange(n)
+    mass = material.linear_density * step * np.r_[np.ones(n - 1), 0.5]
+    weight_moment = np.array([np.sum(mass[i + 1:] * (s[i + 1:] - s[i])) for i in range(n - 1)]) * 9.81 * np.sqrt(0.5)
+    voronoi = np.r_[0.5 * step, np.full(n - 2, step)]
+    pairs = fixed.rest_curvature[0, :n - 1].reshape(n - 1, 2, 2)  # (seen from edge i-1 or the clamp, from edge i)
+    moment = max(material.bending_stiffness) * np.linalg.norm(pairs.mean(axis=1), axis=1) / voronoi
+    print(f"\nroot moment {moment[0]:.4e} N m (weight's {weight_moment[0]:.4e}); "
+          f"max relative error {np.abs(moment / weight_moment - 1).max():.1e}")
+    assert np.allclose(moment, weight_moment, rtol=1e-3)
+
+
+def test_pinned_roots_are_refused():
+    groom = th.Groom.straight(roots=np.zeros((1, 3)), directions=DIAGONAL, length=0.1, n_nodes=8)
+    with pytest.raises(ValueError, match="hinge"):
+        th.sag_free(groom, th.Material(), root="pinned")
 
 
 def test_a_balance_that_is_a_saddle_is_flagged_and_not_used():
@@ -150,6 +177,7 @@ def test_only_the_chosen_strands_change():
     ({"iterations": 0}, "iterations"),
     ({"strands": [5]}, "strands"),
     ({"head": "ball"}, "head"),
+    ({"root": "glued"}, "root"),
 ])
 def test_bad_input_names_the_parameter(kwargs, name):
     groom = th.Groom.straight(roots=np.zeros((1, 3)), directions=DIAGONAL, length=0.1, n_nodes=8)
