@@ -36,7 +36,7 @@ from .frames import parallel_transport
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
-ROOT_MODES = ("clamped", "pinned")
+ROOT_MODES = ("clamped", "pinned", "edge")
 
 
 @ti.func
@@ -98,7 +98,7 @@ class PinTable:
     def __init__(self, model, root: str):
         self.model = model
         self.node_counts = np.asarray(model.groom.node_counts)
-        self.first_free = 1  # node 0 rides on the head (clamped or pinned root)
+        self.first_free = 2 if root == "edge" else 1  # the nodes riding on the head
         self.free_inv = model.inv_mass.to_numpy().astype(np.float64)
         self.free_inv_mass = arrays.scalars(self.free_inv.shape, self.free_inv)
         self.inv = self.free_inv.copy()  # host copy of model.inv_mass with the pins in

@@ -15,7 +15,9 @@ a warm-up run of the same configuration, so compile time is excluded):
               rho 1300) hanging with its helix axis down / horizontal, at rest after damping, vs the
               continuum Kirchhoff rod with intrinsic curvature and twist (taichi_hair.continuum,
               numpy shooting, independent of the simulator); error = |tip - tip_ref| / |drop|,
-              drop = the reference tip's displacement under gravity.
+              drop = the reference tip's displacement under gravity. Rows "curl ... edge" run the
+              same strand with root="edge" (the first edge held rigid: the model before the clamp
+              moved to the root node), side by side.
 Each precision runs in its own process (Taichi fixes it at init), as `python -m taichi_hair.reports
 accuracy --worker --precision float32`, and the rows are merged.
 
@@ -288,17 +290,19 @@ def _settle_until_still(sim):
     return motion
 
 
-def curl_row(n: int, dt: float, axis: str, repeats: int = 1) -> dict:
-    """The curled rod hanging with its axis `axis`, at rest, against the continuum."""
+def curl_row(n: int, dt: float, axis: str, repeats: int = 1, root: str = "clamped") -> dict:
+    """The curled rod hanging with its axis `axis`, at rest, against the continuum; root as in
+    Simulator ("edge" rows are named "curl <axis> edge")."""
     m = curl_material()
 
     def make():
         return _simulator(curl_groom(n, axis), m, dt=dt, drag=2 * m.linear_density * CURL_OMEGA,
-                          twist="quasistatic")
+                          twist="quasistatic", root=root)
     timed = _timed(make, _settle_until_still, repeats)
     ref = curl_reference(axis)
     tip = timed[0].positions()[0, n]
-    return _row(f"curl {axis}", n, dt, "quasistatic", timed, settle=timed[2] / CURL_LENGTH,
+    case = f"curl {axis}" + (" edge" if root == "edge" else "")
+    return _row(case, n, dt, "quasistatic", timed, settle=timed[2] / CURL_LENGTH, root=root,
                 error=float(np.linalg.norm(tip - ref["tip"]) / ref["drop"]))
 
 
@@ -315,10 +319,12 @@ def accuracy_rows(sweep: AccuracySweep, log=None) -> list:
     cases = (("cantilever", sweep.cantilever_segments, ("none",)),
              ("frequency", sweep.frequency_segments, ("none",)), ("helix", sweep.helix_segments, sweep.twists))
     for axis in CURL_AXES:  # segment counts only: the reference is static
-        for n in sweep.curl_segments:
-            rows.append(curl_row(n, sweep.base_dt, axis, sweep.repeats))
-            if log:
-                log(f"curl {axis} {n} segments: error {rows[-1]['error']:.3g}, wall {rows[-1]['wall_s']:.2f} s")
+        for root in ("clamped", "edge"):
+            for n in sweep.curl_segments:
+                rows.append(curl_row(n, sweep.base_dt, axis, sweep.repeats, root))
+                if log:
+                    log(f"{rows[-1]['case']} {n} segments: error {rows[-1]['error']:.3g}, "
+                        f"wall {rows[-1]['wall_s']:.2f} s")
     for case, segments, twists in cases:
         runs = [(n, sweep.base_dt) for n in segments] + [(sweep.dt_segments, dt) for dt in sweep.dts]
         for twist in twists:
@@ -385,7 +391,8 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
 
 
 CASE_COLOURS = {("cantilever", "none"): 0, ("frequency", "none"): 2, ("helix", "quasistatic"): 1,
-                ("helix", "kmoch"): 3, ("curl down", "quasistatic"): 5, ("curl horizontal", "quasistatic"): 6}
+                ("helix", "kmoch"): 3, ("curl down", "quasistatic"): 5, ("curl horizontal", "quasistatic"): 6,
+                ("curl down edge", "quasistatic"): 7, ("curl horizontal edge", "quasistatic"): 4}
 
 
 def accuracy_figure(result: dict):
@@ -415,11 +422,11 @@ def accuracy_figure(result: dict):
 def format_accuracy(result: dict) -> str:
     ref = result["helix_reference"]
     lines = [f"taichi_hair accuracy report ({result['arch']}; {result['timing']})",
-             f"{'case':<15} {'segs':>4} {'dt ms':>5} {'twist':<11} {'precision':<9} {'error':>9} "
+             f"{'case':<20} {'segs':>4} {'dt ms':>5} {'twist':<11} {'precision':<9} {'error':>9} "
              f"{'wall s':>7} {'steps':>6} {'subst':>5} {'settle/L':>9}"]
     for r in result["rows"]:
         settle = f"{r['settle']:9.1e}" if r.get("settle") is not None else f"{'-':>9}"
-        lines.append(f"{r['case']:<15} {r['segments']:4d} {r['dt'] * 1e3:5.2f} {r['twist']:<11} {r['precision']:<9} "
+        lines.append(f"{r['case']:<20} {r['segments']:4d} {r['dt'] * 1e3:5.2f} {r['twist']:<11} {r['precision']:<9} "
                      f"{r['error']:9.2e} {r['wall_s']:7.2f} {r['steps']:6d} {r['substeps']:5d} {settle}")
     lines += ["error: cantilever |tip - elastica| / L; frequency |f / f_beam - 1|; helix |tip - tip_ref| / L; "
               "curl |tip - tip_continuum| / |drop_continuum|",

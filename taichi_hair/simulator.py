@@ -68,11 +68,14 @@ class Simulator:
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
     max_speed [m/s]: a node faster than this counts as a blow-up.
     root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
-        the head-carried root frame from node 0 on, docs/model.md "The clamp at the root") or "pinned" (node 0 rides on the head, node 1 is free: the strand swings
-        freely about its root node. The root edge's reference director is parallel-transported
-        in time from its previous direction each step; its material angle theta^0 stays held in
-        that frame (the twist solve keeps it fixed), so the joint is free in bending and holds
-        spin about the edge: a universal joint, not a ball joint).
+        the head-carried root frame from node 0 on, docs/model.md "The clamp at the root"),
+        "pinned" (node 0 rides on the head, node 1 is free: the strand swings freely about its
+        root node. The root edge's reference director is parallel-transported in time from its
+        previous direction each step; its material angle theta^0 stays held in that frame (the
+        twist solve keeps it fixed), so the joint is free in bending and holds spin about the
+        edge: a universal joint, not a ball joint), or "edge" (the first edge rides rigidly on
+        the head and bending starts at node 1: the strand bends like one half an edge shorter,
+        a first-order error; the model before the clamp moved to the root node, kept to compare).
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -93,6 +96,10 @@ class Simulator:
         self.twist = twist
         self.twist_iterations = twist_iterations
         self.model, self.state = build(groom, material, clamp=root == "clamped")
+        if root == "edge":  # the first edge rides on the head: node 1 is held too
+            inv_mass = self.model.inv_mass.to_numpy()
+            inv_mass[:, 1] = 0.0
+            self.model.inv_mass.from_numpy(inv_mass)
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
@@ -118,7 +125,7 @@ class Simulator:
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=_positive("twist_tol", _default_twist_tol() if twist_tol is None else twist_tol, ""),
-            twist_iterations=twist_iterations, pinned_root=root == "pinned")
+            twist_iterations=twist_iterations, root=root)
         self.time = 0.0
         self.steps_taken = 0
         self._snapshot = None

@@ -29,6 +29,10 @@ from .state import COUNTERS
 from .twist import CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch, strand_twist_quasistatic
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
+# root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
+# pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
+# before the clamp moved to the root node, kept for comparison)
+ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
 # With pins a stretch of strand can be held at both ends; taut and straight, its projection
@@ -58,7 +62,15 @@ class StepPlan:
     projection_iterations: int
     twist_tol: float
     twist_iterations: int
-    pinned_root: bool = False  # root="pinned": node 0 on the head, the root edge swings freely
+    root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
+
+    @property
+    def pinned_root(self) -> bool:
+        return self.root == "pinned"
+
+    @property
+    def root_mode(self) -> int:
+        return ROOT_CODES[self.root]
 
     @property
     def contacts(self) -> bool:
@@ -110,12 +122,13 @@ def rotate(head: ti.template(), k, p):
 
 @ti.func
 def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: ti.template(),
-                      root_t: ti.template(), root_u: ti.template(), pinned_root: ti.template()):
+                      root_t: ti.template(), root_u: ti.template(), root_mode: ti.template()):
     """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
     clamp that node 0 bends and twists against and from which the Bishop frames start, turns
     with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
-    x[s, 0] = rotate(head, k, root_frame[s, 0]) + head[k, 3]
-    if ti.static(not pinned_root):
+    for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
+        x[s, node] = rotate(head, k, root_frame[s, node]) + head[k, 3]
+    if ti.static(root_mode != 1):
         root_t[s] = rotate(head, k, root_frame[s, 2])
         root_u[s] = rotate(head, k, root_frame[s, 3])
 
@@ -260,7 +273,7 @@ def advance_strands(
         projection_iterations: int, twist_tol: float, twist_iterations: int, n_analytic: int,
         external: ti.template(), wind_field: ti.template(), twist_mode: ti.template(),
         user: ti.template(), moving_head: ti.template(), contacts: ti.template(),
-        use_mesh: ti.template(), touch: ti.template(), pins: ti.template(), pinned_root: ti.template(),
+        use_mesh: ti.template(), touch: ti.template(), pins: ti.template(), root_mode: ti.template(),
         pin_f0: float, pin_df: float, pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2,
         node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, rest_length: Scalars2,
         voronoi: Scalars2, stiffness: Vec4s1, rest_kappa: Vec4s2, rest_twist: Scalars2,
@@ -286,10 +299,10 @@ def advance_strands(
                 prev = k
             elif k > 0:
                 prev = 1
-            strand_elastic_forces(s, not pinned_root, x, node_count, kb, m1, m2, root_t, root_u,
+            strand_elastic_forces(s, ti.static(root_mode == 0), x, node_count, kb, m1, m2, root_t, root_u,
                                   rest_kappa, voronoi, stiffness, force)
             if ti.static(twist_mode == 1):
-                strand_kmoch_forces(s, not pinned_root, x, node_count, bishop_u, bishop_v, kb, theta,
+                strand_kmoch_forces(s, ti.static(root_mode == 0), x, node_count, bishop_u, bishop_v, kb, theta,
                                     root_t, rest_kappa, rest_twist, voronoi, stiffness, force)
             if ti.static(external or touch):
                 strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
@@ -297,7 +310,7 @@ def advance_strands(
             if ti.static(user):
                 strand_add_forces(s, node_count, user_force, force)
             strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
-            strand_place_root(s, head, now, root_frame, x, root_t, root_u, pinned_root)
+            strand_place_root(s, head, now, root_frame, x, root_t, root_u, root_mode)
             if ti.static(pins):
                 strand_place_pins(s, ti.min(1.0, pin_f0 + (k + 1) * pin_df), node_count, pin_mode,
                                   pin_start, pin_end, head, now, x)
@@ -309,11 +322,11 @@ def advance_strands(
             bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
             if not (res <= FAILED_ABOVE):
                 bad = 1
-            strand_frames(s, not pinned_root, x, node_count, root_t, root_u, theta, bishop_u,
+            strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u,
                           bishop_v, m1, m2, kb)
-            if ti.static(pinned_root):
+            if ti.static(root_mode == 1):
                 strand_carry_root_frame(s, x, root_t, root_u)
-            if strand_twist(s, twist_mode, not pinned_root, twist_tol, twist_iterations, node_count,
+            if strand_twist(s, twist_mode, ti.static(root_mode == 0), twist_tol, twist_iterations, node_count,
                             bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi,
                             stiffness, m1, m2, scratch_a, scratch_b, scratch_c, counters, residuals):
                 bad = 1
@@ -329,7 +342,7 @@ def compiled_variants() -> list[dict]:
     mapper = advance_strands._primal.mapper
     names = [a.name for a in mapper.arguments]
     flags = ("external", "wind_field", "twist_mode", "user", "moving_head", "contacts", "use_mesh", "touch",
-             "pins", "pinned_root")
+             "pins", "root_mode")
     return [{f: key[names.index(f)] for f in flags} for key in mapper.mapping]
 
 
@@ -360,7 +373,7 @@ def advance(model, state, control, plan: StepPlan, h: float, n_steps: int, movin
         n_steps, h, c.time, c.drag, c.max_speed, plan.projection_tol, plan.projection_iterations,
         plan.twist_tol, plan.twist_iterations, plan.n_analytic,
         plan.external_forces, plan.wind_field, TWIST_CODES[plan.twist], user, moving_head,
-        plan.contacts, plan.mesh, plan.touch, use_pins, plan.pinned_root, f0, df, *pin_arrays,
+        plan.contacts, plan.mesh, plan.touch, use_pins, plan.root_mode, f0, df, *pin_arrays,
         *_common_args(model, state, control, plan), c.head, c.loads, c.gusts, c.modes,
         c.user_force if user else st.force, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
         c.tools, c.tool_points, st.x, st.v, st.x_prev, st.dx, st.force, st.theta, st.bishop_u,
@@ -385,7 +398,7 @@ def external_and_user_forces(t: float, drag: float, external: ti.template(), win
 
 
 @ti.kernel
-def integrate(h: float, pins: ti.template(), pinned_root: ti.template(), pin_f0: float, pin_df: float,
+def integrate(h: float, pins: ti.template(), root_mode: ti.template(), pin_f0: float, pin_df: float,
               pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2, node_count: Ints1,
               inv_mass: Scalars2, force: Vec3s2, head: Vec3s2, root_frame: Vec3s2, v: Vec3s2, x: Vec3s2,
               x_prev: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
@@ -393,7 +406,7 @@ def integrate(h: float, pins: ti.template(), pinned_root: ti.template(), pin_f0:
     of the way to their end targets. One thread per strand."""
     for s in range(x.shape[0]):
         strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
-        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, pinned_root)
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, root_mode)
         if ti.static(pins):
             strand_place_pins(s, ti.min(1.0, pin_f0 + pin_df), node_count, pin_mode, pin_start,
                               pin_end, head, 1, x)
@@ -421,7 +434,7 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
 
 @ti.kernel
 def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, twist_iterations: int,
-                            twist_mode: ti.template(), pinned_root: ti.template(), node_count: Ints1,
+                            twist_mode: ti.template(), root_mode: ti.template(), node_count: Ints1,
                             x: Vec3s2, x_prev: Vec3s2,
                             v: Vec3s2, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
                             bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2,
@@ -432,11 +445,11 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
     for s in range(x.shape[0]):
         if strand_velocities(s, inv_h, max_speed, node_count, x, x_prev, v):
             counters[s, BAD] = 0
-        strand_frames(s, not pinned_root, x, node_count, root_t, root_u, theta, bishop_u, bishop_v,
+        strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u, bishop_v,
                       m1, m2, kb)
-        if ti.static(pinned_root):
+        if ti.static(root_mode == 1):
             strand_carry_root_frame(s, x, root_t, root_u)
-        if strand_twist(s, twist_mode, not pinned_root, twist_tol, twist_iterations, node_count,
+        if strand_twist(s, twist_mode, ti.static(root_mode == 0), twist_tol, twist_iterations, node_count,
                         bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness,
                         m1, m2, a, b, c, counters, residuals):
             counters[s, BAD] = 0
@@ -446,7 +459,7 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
 def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
     """Root nodes and root reference frames at head pose 1. One thread per strand."""
     for s in range(x.shape[0]):
-        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, False)
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
 
 
 def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, interaction=None,
@@ -470,7 +483,7 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
             interaction(model, state, control, h)
     with stage("integration"):
         use_pins, f0, df, *pin_arrays = _pin_args(st, pins)
-        integrate(h, use_pins, plan.pinned_root, f0, df, *pin_arrays, md.node_count, md.inv_mass,
+        integrate(h, use_pins, plan.root_mode, f0, df, *pin_arrays, md.node_count, md.inv_mass,
                   st.force, c.head, md.root_frame, st.v, st.x, st.x_prev, st.root_t, st.root_u)
     with stage("projection"):
         project_constraints(plan.projection_tol, plan.projection_iterations, plan.n_analytic,
@@ -480,7 +493,7 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
                             st.counters, st.residuals)
     with stage("frames + twist"):
         velocities_frames_twist(1.0 / h, c.max_speed, plan.twist_tol, plan.twist_iterations,
-                                TWIST_CODES[plan.twist], plan.pinned_root, md.node_count, st.x,
+                                TWIST_CODES[plan.twist], plan.root_mode, md.node_count, st.x,
                                 st.x_prev, st.v, st.root_t, st.root_u, st.theta, st.bishop_u,
                                 st.bishop_v, st.m1, st.m2, st.kb, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
                                 *st.scratch_edge, st.counters, st.residuals)
@@ -517,7 +530,7 @@ def run_twist_update(model, state, plan: StepPlan):
     md, st = model, state
     if plan.twist != "none":
         update_twist_kernel(plan.twist_tol, plan.twist_iterations, TWIST_CODES[plan.twist],
-                            not plan.pinned_root, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb,
+                            md.clamp, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb,
                             md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, *st.scratch_edge,
                             st.counters, st.residuals)
 

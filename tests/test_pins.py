@@ -301,7 +301,7 @@ def test_pin_code_compiles_only_when_pins_are_used():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout[out.stdout.index("{"):])
-    assert result["bare"] and not any(v["pins"] or v["pinned_root"] for v in result["bare"])
+    assert result["bare"] and not any(v["pins"] or v["root_mode"] != 0 for v in result["bare"])
     assert len(result["all"]) == 2 and sum(v["pins"] for v in result["all"]) == 1
 
 
