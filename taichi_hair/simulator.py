@@ -18,6 +18,8 @@ from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
 from .state import build
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .collisions import root_keeps_collider
+from .scene import _host_distance
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
@@ -129,6 +131,7 @@ class Simulator:
         self._head = self._head_prev = (np.eye(3), np.zeros(3))
         if root_motion is not None:
             self._place_groom(*self._head_at(0.0))
+        self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_start(strict, stability_factor)
@@ -177,6 +180,25 @@ class Simulator:
         st, md = self.state, self.model
         if reference or (reference is None and not self.plan.pinned_root):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+
+    def _colliders_holding_roots(self, colliders) -> list[tuple[int, int]]:
+        """(strand, collider index) pairs whose root starts inside the collider by more than its
+        margin: the contact stage skips them (collisions.root_keeps_collider), so say so once.
+        Head-attached colliders see the roots in head coordinates, world ones at the start pose."""
+        head_roots = self.groom.positions[:, 0]
+        world_roots = self.positions()[:, 0]
+        skipped = []
+        for k, c in enumerate(colliders):
+            roots = head_roots if c.attached == "head" else world_roots
+            depth = _host_distance(c, roots)
+            skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
+        if skipped:
+            kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})
+            warnings.warn(f"{len(skipped)} strand root(s) (first: strand {skipped[0][0]}) lie inside "
+                          f"{', '.join(kinds)} by more than its margin: those strands do not collide with "
+                          f"it (sim.skipped_colliders lists the pairs); move the roots onto the surface "
+                          f"to keep the hair out", RuntimeWarning, stacklevel=3)
+        return skipped
 
     def _resolve_initial_contacts(self):
         """Move groomed nodes that start inside a collider's margin out of it before the first
