@@ -9,6 +9,14 @@ Public API (see README.md):
     th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
 """
 
+import contextlib as _contextlib
+import sys as _sys
+
+# Taichi prints a banner on stdout when imported; stdout belongs to the caller's data (the CLI's
+# --json documents), so the banner goes to stderr with Taichi's other diagnostics.
+with _contextlib.redirect_stdout(_sys.stderr):
+    import taichi as _taichi  # noqa: F401
+
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .forces import Grab, Hand, Wind
 from .groom import Groom

@@ -147,9 +147,7 @@ def analytic_distance(kind, a, b, radius, p):
     d = 0.0
     n = vec3(0.0, 0.0, 1.0)
     if kind == SPHERE:
-        q = p - a
-        d = q.norm() - radius
-        n = safe_normal(q, n)
+        d, n = sphere_distance(p - a, radius)
     elif kind == ELLIPSOID:
         q = p - a
         k0 = (q / b).norm()
@@ -166,6 +164,12 @@ def analytic_distance(kind, a, b, radius, p):
         d = (p - a).dot(b)
         n = b
     return d, n
+
+
+@ti.func
+def sphere_distance(q, radius):
+    """(signed distance [m], outward unit normal) of offset q [m] from a sphere's centre."""
+    return q.norm() - radius, safe_normal(q, vec3(0.0, 0.0, 1.0))
 
 
 @ti.func

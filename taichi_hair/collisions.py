@@ -4,7 +4,7 @@ projection (see step.strand_project), alternating with the inextensibility solve
 import taichi as ti
 
 from .arrays import vec3
-from .colliders import analytic_distance, grid_distance
+from .colliders import analytic_distance, grid_distance, sphere_distance
 from .forces import HAND
 
 
@@ -110,7 +110,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                     if inv_mass[s, i] > 0.0:
                         local = x[s, i] - centre
                         local_prev = x_prev[s, i] - tool_points[tool_prev, k]
-                        d, n = analytic_distance(0, vec3(0.0), vec3(0.0), tools[k][1], local)
+                        d, n = sphere_distance(local, tools[k][1])
                         if d < tools[k][2]:
                             x[s, i] = centre + resolve_contact(local, local_prev, d, n, tools[k][2],
                                                                tools[k][3])

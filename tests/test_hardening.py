@@ -1,6 +1,10 @@
 """Regression tests for the defects of issue 15 (hardening): each failed on the code before its fix."""
 
+import json
 import struct
+import subprocess
+import sys
+import textwrap
 import time
 import tracemalloc
 import warnings
@@ -107,3 +111,41 @@ def test_writers_wrap_os_errors_naming_the_path(tmp_path, write):
     path = tmp_path / "no such directory" / "out.file"
     with pytest.raises(HairFileError, match="no such directory/out.file: cannot write the file"):
         write(path, [np.zeros((2, 3)), np.ones((3, 3))])
+
+
+# ---- 3. --json prints JSON only; 8. compiling touch tools warns of no division by zero -------
+
+def _run(args, **kwargs):
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, **kwargs)
+
+
+def test_bench_json_stdout_is_one_json_document():
+    done = _run([sys.executable, "-m", "taichi_hair", "bench", "--json", "--strands", "1", "--repeats", "1",
+                 "--stage-steps", "1", "--head-guides", "0", "--dense", "0"])
+    assert done.returncode == 0, done.stderr[-2000:]
+    results = json.loads(done.stdout)  # before: "[Taichi] version ..." first, not JSON
+    assert results[0]["precision"] == "float32"
+    assert "[Taichi]" in done.stderr
+
+
+def test_library_keeps_stdout_for_the_caller():
+    done = _run([sys.executable, "-c", "import taichi_hair as th; th.init(); print('data')"])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == "data\n"
+
+
+def test_touch_tools_compile_without_division_warnings():
+    script = textwrap.dedent("""
+        import taichi_hair as th
+        th.init(arch="cpu", precision="float64", offline_cache=False)  # compile for real
+        groom = th.Groom.straight(roots=[[0, 0, 0]], directions=[[0, 0, -1]], length=0.1, n_nodes=11)
+        tools = (th.Grab(path=lambda t: (0.0, 0.02, -0.05)), th.Hand(path=lambda t: (0.0, -0.05, -0.05)))
+        sim = th.Simulator(groom, th.Material(), dt=2e-4, touch=tools)
+        sim.step(2)
+        print(sim.time)
+        """)
+    done = _run([sys.executable, "-c", script])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert float(done.stdout.split()[-1]) == pytest.approx(4e-4)
+    # before: 12 "Potential division by 0" warnings (the hands reused the ellipsoid branch with zero radii)
+    assert done.stderr.count("division by 0") == 0, done.stderr[-3000:]
