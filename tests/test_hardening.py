@@ -129,9 +129,12 @@ def test_bench_json_stdout_is_one_json_document():
 
 
 def test_library_keeps_stdout_for_the_caller():
-    done = _run([sys.executable, "-c", "import taichi_hair as th; th.init(); print('data')"])
+    script = ("import taichi_hair as th; th.init(); import taichi.lang.shell as shell; "
+              "print('data', shell.pybuf_enabled)")
+    done = _run([sys.executable, "-c", script])
     assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout == "data\n"
+    # the banner went to stderr without Taichi mistaking a replaced stdout for a notebook's
+    assert done.stdout == "data False\n" and "[Taichi] version" in done.stderr
 
 
 def test_touch_tools_compile_without_division_warnings():
