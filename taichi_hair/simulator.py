@@ -30,6 +30,7 @@ from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, pro
                    run_twist_update, strand_mechanical_energy)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
+DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
 
@@ -69,6 +70,8 @@ class Simulator:
     colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
     max_speed [m/s]: a node faster than this counts as a blow-up.
+    max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
+        bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
     root: "clamped" (default: the root edge's two nodes ride on the head, its frame turns with
         the head) or "pinned" (node 0 rides on the head, node 1 is free: the strand swings
         freely about its root node. The root edge's reference director is parallel-transported
@@ -84,7 +87,7 @@ class Simulator:
                  twist_tol: float | None = None, twist_iterations: int = 30, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
-                 root: str = "clamped"):
+                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction)
@@ -114,6 +117,8 @@ class Simulator:
             raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
                              "(human hair in air: about 1e-4 to 1e-3)")
         self.stable_dt = min(self.stable_dt, wind_bound(groom, _max_air_speed(wind), stability_factor))
+        self.max_substeps = _check_max_substeps(max_substeps)
+        self._bound_inputs = (drag, wind, stability_factor)
         self.substeps = self._substeps_for(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
@@ -159,7 +164,31 @@ class Simulator:
                              f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, "
                              f"grab springs and the starting shape); lower dt or pass strict=False to "
                              f"substep automatically")
-        return math.ceil(self.dt / self.stable_dt)
+        substeps = math.ceil(self.dt / self.stable_dt)
+        if substeps > self.max_substeps:
+            raise ValueError(f"dt = {self.dt:.3g} s would need {substeps} substeps of at most "
+                             f"{self.stable_dt:.3g} s, more than max_substeps = {self.max_substeps}; the "
+                             f"stability bound is set by {self._bound_cause()}. Change that, lower dt, or "
+                             f"raise max_substeps")
+        return substeps
+
+    def _bound_cause(self) -> str:
+        """Which input sets stable_dt, in words naming the parameter (for the substep refusal)."""
+        drag, wind, factor = self._bound_inputs
+        materials = self.model.materials
+        bend = stable_time_step(self.groom, materials, 0.0, factor)
+        candidates = [(stable_time_step(self.groom, materials, drag, factor),
+                       f"drag = {drag:g} N s/m per metre (with the material's bending bound {bend:.3g} s)"),
+                      (bend, "the material's bending stiffness (youngs_modulus, radius) over the shortest "
+                             "segment and the sharpest rest turn of the groom"),
+                      (wind_bound(self.groom, _max_air_speed(wind), factor),
+                       f"the wind (fastest air {_max_air_speed(wind):.3g} m/s moving nodes a segment per step)")]
+        candidates += [(_grab_bound(self.model, g, factor), f"touch[{k}].stiffness = {g.stiffness:g} N/m")
+                       for k, g in enumerate(self.touch) if isinstance(g, Grab)]
+        bound, cause = min(candidates, key=lambda c: c[0])
+        if bound > 1.01 * self.stable_dt:
+            return "the shape the colliders left the groom in at the start (sharp bends)"
+        return cause if not (cause.startswith("drag") and bound > 0.5 * bend) else candidates[1][1]
 
     # ---- head transform -----------------------------------------------------------------
     def _head_at(self, t: float):
@@ -609,6 +638,12 @@ def _grab_bound(model, grab, factor):
     """Explicit stability of a grab spring k on the lightest free node: h < 2 factor sqrt(m / k)."""
     masses = model.mass.to_numpy()[model.inv_mass.to_numpy() > 0]
     return 2.0 * factor * math.sqrt(masses.min() / grab.stiffness)
+
+
+def _check_max_substeps(value) -> int:
+    if isinstance(value, bool) or not (isinstance(value, (int, np.integer)) and value >= 1):
+        raise ValueError(f"max_substeps must be an integer >= 1, got {value!r}")
+    return int(value)
 
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,

@@ -152,3 +152,31 @@ def test_touch_tools_compile_without_division_warnings():
     assert float(done.stdout.split()[-1]) == pytest.approx(4e-4)
     # before: 12 "Potential division by 0" warnings (the hands reused the ellipsoid branch with zero radii)
     assert done.stderr.count("division by 0") == 0, done.stderr[-3000:]
+
+
+# ---- 4. automatic substepping has a ceiling ------------------------------------------------
+
+def _hair(n_nodes=21):
+    return th.Groom.straight(roots=[[0, 0, 0]], directions=[[1, 0, 0]], length=0.2, n_nodes=n_nodes)
+
+
+def test_substeps_past_max_substeps_are_refused_naming_the_cause():
+    start = time.perf_counter()
+    # before: 153,033,600 substeps per step after one warning (an apparent hang)
+    with pytest.raises(ValueError, match=r"153033600 substeps .* more than max_substeps = 1000; the "
+                                         r"stability bound is set by drag = 1e\+06 N s/m per metre"):
+        th.Simulator(_hair(), th.Material(), drag=1e6)
+    assert time.perf_counter() - start < 5.0
+    grab = th.Grab(path=lambda t: (0.1, 0.0, 0.0), stiffness=1e6)
+    with pytest.raises(ValueError, match=r"set by touch\[0\]\.stiffness = 1e\+06 N/m"):
+        th.Simulator(_hair(), th.Material(), touch=(grab,))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
+        sim = th.Simulator(_hair(), th.Material(), drag=100.0, max_substeps=20000)
+    assert 1000 < sim.substeps <= 20000 and sim.dt / sim.substeps <= sim.stable_dt
+
+
+@pytest.mark.parametrize("value", [0, -3, 2.5, True, "10"])
+def test_max_substeps_must_be_a_positive_integer(value):
+    with pytest.raises(ValueError, match=f"max_substeps must be an integer >= 1, got {value!r}"):
+        th.Simulator(_hair(), th.Material(), max_substeps=value)
