@@ -401,14 +401,17 @@ class Simulator:
             step=step, strand=int(first))
 
     # ---- checkpoints --------------------------------------------------------------------
-    def save_state(self, path) -> None:
+    def save_state(self, path, extra=None) -> None:
         """Write the dynamic state (positions, velocities, material angles, time, step count,
         head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
-        crash mid-write leaves the previous checkpoint intact."""
+        crash mid-write leaves the previous checkpoint intact. `extra`: a dict of numbers or
+        arrays stored alongside as `extra_<name>` (the runner's frame count), part of the same
+        atomic record; `load_state` ignores them."""
         import os
         path = os.fspath(path)
         tmp = path + ".tmp.npz"
-        np.savez(tmp, x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
+        np.savez(tmp, **{f"extra_{k}": v for k, v in (extra or {}).items()},
+                 x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
                  theta=self.state.theta.to_numpy(), root_t=self.state.root_t.to_numpy(),
                  root_u=self.state.root_u.to_numpy(), time=self.time, steps=self.steps_taken,
                  head=_pose(*self._head), head_prev=_pose(*self._head_prev),
