@@ -16,6 +16,7 @@ import numpy as np
 
 from .colliders import _scalar, _vec
 from .progress import ProgressBar
+from .scene import Scene
 
 STATE_FILE = "state.npz"
 PROGRESS_FILE = "progress.json"
@@ -56,7 +57,6 @@ class Shot:
         _scalar("hair_width", self.hair_width, "m", inclusive=False)
         _vec("eye", self.eye)
         _vec("target", self.target)
-
         if self.dt > 1.0 / self.fps:
             raise ValueError(f"dt must be at most one frame, 1/fps = {1.0 / self.fps:.4g} s at fps = "
                              f"{self.fps}, got {self.dt!r}")
@@ -83,10 +83,32 @@ def load_scene_module(path):
         raise ValueError(f"scene script {path} does not exist")
     spec = importlib.util.spec_from_file_location(f"taichi_hair_scene_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the script's own error: name it (the CLI's --debug shows where)
+        raise SceneScriptError(f"scene script {path} failed to load: {type(err).__name__}: {err}") from err
     if not callable(getattr(module, "build", None)):
         raise ValueError(f"scene script {path} must define build() returning a taichi_hair.Scene")
     return module
+
+
+class SceneScriptError(ValueError):
+    """A scene script that fails to load, or whose build() / shot() raises or returns the wrong
+    type: a user error (the CLI prints one line; --debug shows the traceback)."""
+
+
+def _call_script(script, module, name, expected):
+    """module.name(), checked to be an `expected`; SceneScriptError naming the script otherwise."""
+    try:
+        value = getattr(module, name)()
+    except ValueError:
+        raise  # already names its parameter
+    except Exception as err:
+        raise SceneScriptError(f"scene script {script}: {name}() raised {type(err).__name__}: {err}") from err
+    if not isinstance(value, expected):
+        raise SceneScriptError(f"scene script {script}: {name}() must return a taichi_hair "
+                               f"{expected.__name__}, got {type(value).__name__}")
+    return value
 
 
 def scalp_interpolator(scene, simulator, n_dense, seed=0):
@@ -144,13 +166,16 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     from .simulator import Simulator
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
-    scene = module.build()
-    shot = module.shot() if callable(getattr(module, "shot", None)) else Shot()
+    scene = _call_script(script, module, "build", Scene)
+    shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
     if overrides:
         shot = Shot(**{**shot.__dict__, **overrides})
     total = shot.frames if frames is None else frames
     out = Path(out_dir)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
+    try:
+        (out / "frames").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"{out}: cannot create the output folder (--out): {err.strerror or err}") from None
     sim = Simulator.from_scene(scene, dt=shot.frame_dt)
     if callable(getattr(module, "setup", None)):
         module.setup(scene, sim)

@@ -249,3 +249,34 @@ def test_shot_fits_dt_to_the_frame_and_refuses_dt_past_a_frame():
     assert Shot(fps=25, dt=1e-3).steps_per_frame == 40 and Shot(fps=24, dt=1 / 24).steps_per_frame == 1
     with pytest.raises(ValueError, match=r"dt must be at most one frame, 1/fps = 0.04167 s at fps = 24, got 0.5"):
         Shot(fps=24, dt=0.5)
+
+
+# ---- 7. CLI: every user error is one line naming the file or parameter, exit code 2 ----------
+
+def _error_lines(stderr):
+    return [line for line in stderr.splitlines() if "error:" in line]
+
+
+@pytest.mark.parametrize("case", ["unwritable out", "build returns an int", "script raises"])
+def test_cli_user_errors_are_one_line_naming_the_file(tmp_path, case):
+    scene, out = CANTILEVER, tmp_path / "out"
+    if case == "unwritable out":
+        (tmp_path / "blocker").write_text("a file, not a folder")
+        out = tmp_path / "blocker" / "out"
+        expected = f"{out}: cannot create the output folder (--out)"
+    elif case == "build returns an int":
+        scene = tmp_path / "scene.py"
+        scene.write_text("def build():\n    return 42\n")
+        expected = f"scene script {scene}: build() must return a taichi_hair Scene, got int"
+    else:
+        scene = tmp_path / "scene.py"
+        scene.write_text("import taichi_hair as th\ndef build():\n    return th.Groom.straight(length=-1)\n"
+                         "raise KeyError('typo')\n")
+        expected = f"scene script {scene} failed to load: KeyError"
+    done = _taichi_hair("run", str(scene), "--out", str(out), "--no-progress", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
+    lines = _error_lines(done.stderr)
+    assert len(lines) == 1 and expected in lines[0], done.stderr[-2000:]
+    debug = _taichi_hair("run", str(scene), "--out", str(out), "--no-progress", "--debug", cwd=tmp_path)
+    assert debug.returncode != 0 and "Traceback" in debug.stderr
