@@ -15,6 +15,7 @@ import numpy as np
 import taichi as ti
 
 from .arrays import vec3
+from .validation import is_real
 
 SPHERE, ELLIPSOID, CAPSULE, PLANE = 0, 1, 2, 3
 ATTACHMENTS = ("head", "world")
@@ -29,7 +30,7 @@ def _vec(name, value, positive=False):
 
 
 def _scalar(name, value, unit, minimum=0.0, inclusive=True):
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and (
+    ok = is_real(value) and math.isfinite(value) and (
         value >= minimum if inclusive else value > minimum)
     if not ok:
         raise ValueError(f"{name} must be a finite number {'>=' if inclusive else '>'} {minimum:g} {unit}, "

@@ -13,9 +13,11 @@ import math
 
 import numpy as np
 
+from .validation import is_real
+
 
 def _check_positive(name: str, value: float, unit: str) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    if not (is_real(value) and math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a finite number > 0 {unit}, got {value!r}")
 
 
@@ -42,8 +44,10 @@ class Material:
         _check_positive("radius", self.radius, "m")
         _check_positive("density", self.density, "kg/m^3")
         e = self.ellipticity
-        if not (isinstance(e, (int, float)) and math.isfinite(e) and e >= 1.0):
+        if not (is_real(e) and math.isfinite(e) and e >= 1.0):
             raise ValueError(f"ellipticity must be a finite number >= 1 (major/minor axis ratio), got {e!r}")
+        for name in ("youngs_modulus", "shear_modulus", "radius", "density", "ellipticity"):
+            object.__setattr__(self, name, float(getattr(self, name)))  # np.float32 in, float64 math
 
     @property
     def semi_axes(self) -> tuple[float, float]:

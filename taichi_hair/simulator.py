@@ -11,7 +11,7 @@ import numpy as np
 
 from . import arrays
 from .frames import update_frames, update_material_frames
-from .groom import Groom
+from .groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
 from .progress import ProgressBar
 from .rod import elastic_forces, strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
@@ -26,6 +26,7 @@ from .interaction import HairInteraction, InteractionGrid
 from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
+from .validation import is_integer, is_real
 from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
                    run_twist_update, strand_mechanical_energy)
 
@@ -43,7 +44,7 @@ def _vector3(name, value):
 
 
 def _positive(name, value, unit, upper=math.inf):
-    if not (isinstance(value, (int, float)) and 0 < value < upper and math.isfinite(value)):
+    if not (is_real(value) and 0 < value < upper and math.isfinite(value)):
         bound = f" and < {upper:g}" if upper < math.inf else ""
         raise ValueError(f"{name} must be > 0{bound} {unit}, got {value!r}")
     return float(value)
@@ -315,8 +316,9 @@ class Simulator:
         where this call began and SimulationDiverged is raised. With `timers` (a callable
         name -> context manager that synchronises), or with hair interaction, every stage runs
         as its own kernel; otherwise many substeps run in one fused launch."""
-        if not (isinstance(n, int) and n >= 0):
+        if not (is_integer(n) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
+        n = int(n)
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps
@@ -358,7 +360,7 @@ class Simulator:
     def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
         """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
         stderr. A blow-up leaves the state at the end of the last healthy chunk."""
-        if not (isinstance(seconds, (int, float)) and seconds >= 0 and math.isfinite(seconds)):
+        if not (is_real(seconds) and seconds >= 0 and math.isfinite(seconds)):
             raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
         total = int(round(seconds / self.dt))
         per_chunk = max(1, int(round(chunk / self.dt)))
@@ -451,8 +453,12 @@ class Simulator:
             return
         force = np.asarray(force, dtype=np.float64)
         shape = (self.groom.n_strands, self.groom.max_nodes, 3)
-        if force.shape != shape or not np.all(np.isfinite(force)):
-            raise ValueError(f"user forces must be finite with shape {list(shape)}, got {list(force.shape)}")
+        if force.shape != shape:
+            raise ValueError(f"user forces must have shape {list(shape)} (strands, nodes, xyz) N, "
+                             f"got {list(force.shape)}")
+        if not np.all(np.isfinite(force)):
+            s, i = np.argwhere(~np.isfinite(force))[0][:2]
+            raise ValueError(f"user forces must be finite; strand {s} node {i} is {force[s, i]} N")
         if self.control.user_force is None:
             self.control.user_force = arrays.vectors(3, shape[:2])
         self.control.user_force.from_numpy(force.astype(arrays.np_float()))
@@ -500,8 +506,11 @@ class Simulator:
 
     def set_positions(self, x) -> None:
         """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
-        are kept (call `update_twist` to re-solve them)."""
-        self.state.x.from_numpy(self._checked_nodes("positions", x))
+        are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
+        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
+        x = self._checked_nodes("positions", x)
+        _check_strand_geometry(x, self.groom.node_counts)
+        self.state.x.from_numpy(x)
         self.update_frames()
 
     def set_velocities(self, v) -> None:
@@ -609,6 +618,29 @@ class Simulator:
         return out.to_numpy().astype(np.float64)
 
 
+def _check_strand_geometry(x, node_counts):
+    """ValueError naming the first strand and node of x [S, N, 3] m whose segment is shorter than
+    MIN_SEGMENT_LENGTH or whose turn exceeds MAX_TURNING_ANGLE_DEG (the Groom's own rules: the
+    curvature binormal is undefined there, so the energy would be NaN). Vectorised over strands."""
+    x = np.asarray(x, dtype=np.float64)
+    edges = np.diff(x, axis=1)
+    lengths = np.linalg.norm(edges, axis=2)
+    real = np.arange(x.shape[1] - 1)[None, :] < (np.asarray(node_counts)[:, None] - 1)
+    short = np.argwhere(real & (lengths < MIN_SEGMENT_LENGTH))
+    if len(short):
+        s, i = short[0]
+        raise ValueError(f"positions: strand {s} segment {i} (nodes {i}-{i + 1}) has length {lengths[s, i]:.3g} m; "
+                         f"segments must be >= {MIN_SEGMENT_LENGTH:g} m long (coincident nodes)")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_turn = np.sum(edges[:, 1:] * edges[:, :-1], axis=2) / (lengths[:, 1:] * lengths[:, :-1])
+    folded = np.argwhere(real[:, 1:] & (cos_turn < math.cos(math.radians(MAX_TURNING_ANGLE_DEG))))
+    if len(folded):
+        s, i = folded[0]
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_turn[s, i]))))
+        raise ValueError(f"positions: strand {s} turns by {angle:.1f} degrees at node {i + 1}; turning angles "
+                         f"must be <= {MAX_TURNING_ANGLE_DEG:g} degrees (the strand folds back on itself)")
+
+
 def default_projection_tol(groom: Groom) -> float:
     """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
     errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
@@ -644,7 +676,7 @@ def _grab_bound(model, grab, factor):
 
 
 def _check_max_substeps(value) -> int:
-    if isinstance(value, bool) or not (isinstance(value, (int, np.integer)) and value >= 1):
+    if not (is_integer(value) and value >= 1):
         raise ValueError(f"max_substeps must be an integer >= 1, got {value!r}")
     return int(value)
 
@@ -657,9 +689,9 @@ def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag
         raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
-        if not (isinstance(value, int) and value >= 1):
+        if not (is_integer(value) and value >= 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if not (isinstance(drag, (int, float)) and math.isfinite(drag) and drag >= 0):
+    if not (is_real(drag) and math.isfinite(drag) and drag >= 0):
         raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
     if root_motion is not None and not callable(root_motion):
         raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")

@@ -280,3 +280,48 @@ def test_cli_user_errors_are_one_line_naming_the_file(tmp_path, case):
     assert len(lines) == 1 and expected in lines[0], done.stderr[-2000:]
     debug = _taichi_hair("run", str(scene), "--out", str(out), "--no-progress", "--debug", cwd=tmp_path)
     assert debug.returncode != 0 and "Traceback" in debug.stderr
+
+
+# ---- 8. API inputs: folds, numpy scalars, NaN forces ---------------------------------------
+
+def test_set_positions_rejects_coincident_nodes_and_folds():
+    sim = th.Simulator(_hair(6), th.Material(), gravity=(0, 0, 0))
+    x = sim.positions()
+    coincident = x.copy()
+    coincident[0, 3] = coincident[0, 2]
+    with pytest.raises(ValueError, match=r"positions: strand 0 segment 2 \(nodes 2-3\) has length 0 m"):
+        sim.set_positions(coincident)
+    folded = x.copy()
+    folded[0, 4] = folded[0, 2]  # node 3 turns back by 180 degrees
+    with pytest.raises(ValueError, match=r"positions: strand 0 turns by 180.0 degrees at node 3; turning "
+                                         r"angles must be <= 170 degrees"):
+        sim.set_positions(folded)
+    np.testing.assert_array_equal(sim.positions(), x)  # refused, not half-applied
+    assert np.isfinite(sim.elastic_energy())  # before: the fold was accepted and the energy was NaN
+
+
+def test_numpy_scalars_are_accepted_wherever_numbers_are():
+    f32, i64 = np.float32, np.int64
+    material = th.Material(youngs_modulus=f32(3e9), radius=f32(4e-5), ellipticity=np.float64(1.2))
+    assert type(material.radius) is float and material.radius == pytest.approx(4e-5, rel=1e-6)
+    groom = th.Groom.straight(length=f32(0.2), n_nodes=i64(11))
+    head = th.Head.sphere(radius=f32(0.05), centre=(0, 0, 0.1), margin=f32(0.002))
+    sim = th.Simulator(groom, material, dt=f32(1e-3), drag=f32(1e-4), projection_iterations=i64(50),
+                       max_substeps=i64(100), colliders=head.colliders)
+    sim.step(i64(2))
+    sim.run(f32(0.002), progress=False)
+    assert sim.steps_taken == 4 and sim.dt == pytest.approx(1e-3)
+    assert Shot(dt=f32(1e-3), fps=24).steps_per_frame == 42
+    for bad in (True, "1e-3", None):  # still refused: not real numbers
+        with pytest.raises(ValueError, match="dt must be > 0 and < 1 s"):
+            th.Simulator(groom, material, dt=bad)
+
+
+def test_user_forces_with_nan_say_what_is_wrong():
+    sim = th.Simulator(_hair(11), th.Material())
+    force = np.zeros((1, 11, 3))
+    force[0, 7, 2] = np.nan
+    with pytest.raises(ValueError, match=r"user forces must be finite; strand 0 node 7 is \[ 0.  0. nan\] N"):
+        sim.set_user_forces(force)
+    with pytest.raises(ValueError, match=r"must have shape \[1, 11, 3\] \(strands, nodes, xyz\) N, got \[11, 3\]"):
+        sim.set_user_forces(force[0])
