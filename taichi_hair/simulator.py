@@ -27,7 +27,7 @@ from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
 from .validation import is_integer, is_real
-from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
+from .step import (FAILED_ABOVE, STALL_BELOW, StepPlan, advance, kmoch_step, place_roots, project_constraints,
                    run_twist_update, strand_mechanical_energy)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
@@ -466,8 +466,10 @@ class Simulator:
     def stats(self, reset: bool = False) -> dict:
         """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
         projection iterations (max), its final residual (max), how many strand-steps ended above
-        projection_tol at the iteration cap (projection_cap_hits) or stalled at the precision's
-        rounding floor (projection_stalls), and the twist solve's iterations and residual."""
+        projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
+        an iteration removed under 10 % of a residual already below projection_stall_below,
+        1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
+        lengths in any precision), and the twist solve's iterations and residual."""
         counters = self.state.counters.to_numpy()
         residuals = self.state.residuals.to_numpy()
         report = {
@@ -478,6 +480,7 @@ class Simulator:
             "projection_residual_max": float(residuals[:, 0].max()),
             "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
             "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
+            "projection_stall_below": STALL_BELOW,
             "twist": self.twist,
         }
         if self.twist == "quasistatic":
