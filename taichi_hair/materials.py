@@ -48,6 +48,15 @@ class Material:
             raise ValueError(f"ellipticity must be a finite number >= 1 (major/minor axis ratio), got {e!r}")
         for name in ("youngs_modulus", "shear_modulus", "radius", "density", "ellipticity"):
             object.__setattr__(self, name, float(getattr(self, name)))  # np.float32 in, float64 math
+        try:
+            derived = (*self.bending_stiffness, self.twist_stiffness, self.linear_density)
+        except OverflowError:
+            derived = (math.inf,)
+        if not all(math.isfinite(v) and v > 0 for v in derived):
+            raise ValueError(f"youngs_modulus, shear_modulus, radius, density and ellipticity give a "
+                             f"bending or twist stiffness or a linear density out of floating-point range "
+                             f"(radius {self.radius!r} m, youngs_modulus {self.youngs_modulus!r} Pa); "
+                             f"use physical values (hair: radius 20e-6 to 100e-6 m, E 2e9 to 5e9 Pa)")
 
     @property
     def semi_axes(self) -> tuple[float, float]:
