@@ -173,6 +173,8 @@ def test_substeps_past_max_substeps_are_refused_naming_the_cause():
     grab = th.Grab(path=lambda t: (0.1, 0.0, 0.0), stiffness=1e6)
     with pytest.raises(ValueError, match=r"set by touch\[0\]\.stiffness = 1e\+06 N/m"):
         th.Simulator(_hair(), th.Material(), touch=(grab,))
+    with pytest.raises(ValueError, match=r"4386 substeps .* set by the material's bending stiffness"):
+        th.Simulator(_hair(101), th.Material(youngs_modulus=1e13, radius=2e-4))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
         sim = th.Simulator(_hair(), th.Material(), drag=100.0, max_substeps=20000)
