@@ -9,6 +9,34 @@ Public API (see README.md):
     th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
 """
 
+import contextlib as _contextlib
+import os as _os
+import sys as _sys
+
+
+def _import_taichi_quietly():
+    """Import Taichi with its banner on stderr: stdout belongs to the caller's data (the CLI's
+    --json documents). The banner is switched off for the import and printed to stderr after it;
+    sys.stdout itself is left alone while Taichi imports (Taichi would take a replaced stdout
+    for a notebook and wrap every kernel call)."""
+    if "taichi" in _sys.modules:
+        return
+    wanted = _os.environ.get("ENABLE_TAICHI_HEADER_PRINT")
+    _os.environ["ENABLE_TAICHI_HEADER_PRINT"] = "0"
+    try:
+        from taichi._lib import utils
+    finally:
+        if wanted is None:
+            del _os.environ["ENABLE_TAICHI_HEADER_PRINT"]
+        else:
+            _os.environ["ENABLE_TAICHI_HEADER_PRINT"] = wanted
+    if (wanted or "True").lower() not in ("false", "0", "f"):
+        with _contextlib.redirect_stdout(_sys.stderr):
+            utils._print_taichi_header()
+
+
+_import_taichi_quietly()
+
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .forces import Grab, Hand, Wind
 from .groom import Groom

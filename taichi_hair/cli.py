@@ -6,6 +6,7 @@ import sys
 import numpy as np
 
 from . import bench, reports, runner
+from .stability import SimulationDiverged
 
 
 def _demo(args) -> int:
@@ -45,6 +46,8 @@ def _demo(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="taichi-hair", description=__doc__)
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an error (accepted anywhere on the line)")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="bend a curly strand and print its energy and forces")
     demo.add_argument("--arch", default="cpu")
@@ -64,12 +67,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run a command. A user error (bad input: ValueError, HairFileError; a file the system
+    refuses: OSError; a scene that diverges: SimulationDiverged) prints one line naming the file
+    or parameter and exits with 2; `--debug` (anywhere on the line) shows the traceback instead."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
     try:
         return args.func(args)
-    except ValueError as err:  # bad input: one clear line, no traceback
-        print(f"taichi-hair: error: {err}", file=sys.stderr)
+    except (ValueError, OSError, SimulationDiverged) as err:
+        if debug:
+            raise
+        print(f"taichi-hair: error: {_one_line(err)} (--debug shows the traceback)", file=sys.stderr)
         return 2
+
+
+def _one_line(err) -> str:
+    """The error as one line; an OSError names its file."""
+    if isinstance(err, OSError) and err.filename is not None:
+        text = f"{err.filename}: {err.strerror or err}"
+    else:
+        text = str(err) or type(err).__name__
+    return " ".join(text.split())
 
 
 if __name__ == "__main__":

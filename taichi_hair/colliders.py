@@ -15,6 +15,7 @@ import numpy as np
 import taichi as ti
 
 from .arrays import vec3
+from .validation import is_real
 
 SPHERE, ELLIPSOID, CAPSULE, PLANE = 0, 1, 2, 3
 ATTACHMENTS = ("head", "world")
@@ -29,7 +30,7 @@ def _vec(name, value, positive=False):
 
 
 def _scalar(name, value, unit, minimum=0.0, inclusive=True):
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and (
+    ok = is_real(value) and math.isfinite(value) and (
         value >= minimum if inclusive else value > minimum)
     if not ok:
         raise ValueError(f"{name} must be a finite number {'>=' if inclusive else '>'} {minimum:g} {unit}, "
@@ -147,9 +148,7 @@ def analytic_distance(kind, a, b, radius, p):
     d = 0.0
     n = vec3(0.0, 0.0, 1.0)
     if kind == SPHERE:
-        q = p - a
-        d = q.norm() - radius
-        n = safe_normal(q, n)
+        d, n = sphere_distance(p - a, radius)
     elif kind == ELLIPSOID:
         q = p - a
         k0 = (q / b).norm()
@@ -166,6 +165,12 @@ def analytic_distance(kind, a, b, radius, p):
         d = (p - a).dot(b)
         n = b
     return d, n
+
+
+@ti.func
+def sphere_distance(q, radius):
+    """(signed distance [m], outward unit normal) of offset q [m] from a sphere's centre."""
+    return q.norm() - radius, safe_normal(q, vec3(0.0, 0.0, 1.0))
 
 
 @ti.func

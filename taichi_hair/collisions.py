@@ -4,7 +4,7 @@ projection (see step.strand_project), alternating with the inextensibility solve
 import taichi as ti
 
 from .arrays import vec3
-from .colliders import analytic_distance, grid_distance
+from .colliders import analytic_distance, grid_distance, sphere_distance
 from .forces import HAND
 
 
@@ -46,6 +46,12 @@ def collider_frame(on_head, head: ti.template(), now, prev, p, p_prev):
     return local, local_prev
 
 
+def root_keeps_collider(root_distance, margin):
+    """The rule strand_collide applies on the device, for host-side checks: a strand collides
+    with a collider unless its root lies inside it by more than the collider's margin [m]."""
+    return root_distance >= -margin
+
+
 @ti.func
 def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.template(),
                    x_prev: ti.template(), head: ti.template(), now, prev,
@@ -57,15 +63,18 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
     distance grid, optional hands). Head-attached shapes are handled in head coordinates so
     their friction sees the motion relative to the moving head (head poses now / prev); hands
     sit at tool_points[tool_now] (tool_prev before the step). A collider that holds the strand's
-    own root is skipped for that strand: pushing its nodes out would fight the clamped root
-    every step (a groom rooted inside a neck capsule, say). Returns the number of pushes."""
+    own root deeper than its margin (signed distance < -margin) is skipped for that strand:
+    pushing its nodes out would fight the held root every step (a groom rooted inside a neck
+    capsule, say). A root on the surface or within the margin keeps the collider; the Simulator
+    warns about every skipped (strand, collider) pair at construction. Returns the number of
+    pushes."""
     pushes = 0
     root = x[s, 0]
     for c in range(n_analytic):
         on_head = params[c][3] > 0.5
         root_local, _ = collider_frame(on_head, head, now, prev, root, root)
         d_root, _ = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], root_local)
-        if d_root > 0.0:
+        if d_root >= -params[c][1]:  # see root_keeps_collider
             for i in range(node_count[s]):
                 if inv_mass[s, i] > 0.0:
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
@@ -81,7 +90,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
         on_head = sdf_meta[2][0] > 0.5
         root_local, _ = collider_frame(on_head, head, now, prev, root, root)
         d_root, _ = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], root_local)
-        if d_root > 0.0:
+        if d_root >= -sdf_meta[1][1]:  # see root_keeps_collider
             for i in range(node_count[s]):
                 if inv_mass[s, i] > 0.0:
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
@@ -101,7 +110,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                     if inv_mass[s, i] > 0.0:
                         local = x[s, i] - centre
                         local_prev = x_prev[s, i] - tool_points[tool_prev, k]
-                        d, n = analytic_distance(0, vec3(0.0), vec3(0.0), tools[k][1], local)
+                        d, n = sphere_distance(local, tools[k][1])
                         if d < tools[k][2]:
                             x[s, i] = centre + resolve_contact(local, local_prev, d, n, tools[k][2],
                                                                tools[k][3])

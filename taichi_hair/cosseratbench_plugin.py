@@ -237,6 +237,7 @@ class TaichiHairSolver:
         options = dict(dt=dt, gravity=tuple(scenario.gravity), drag=self._drag(scenario),
                        twist="quasistatic", colliders=colliders,
                        stability_factor=self.stability_factor,
+                       max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
                        root_motion=_motion_callable(motions[0]) if motions else None)
         if pinned_root:
             options["root"] = "pinned"

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from .validation import is_real
+
 MIN_SEGMENT_LENGTH = 1e-7  # [m]; shorter edges make the curvature binormal ill-conditioned
 MAX_TURNING_ANGLE_DEG = 170.0  # kb = 2 tan(phi/2) diverges as a strand folds back on itself
 
@@ -146,7 +148,7 @@ class Groom:
 
 
 def _check_positive(name, value, unit, allow_zero=False):
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    ok = is_real(value) and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
     if not ok:
         raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0 {unit}, got {value!r}")
 

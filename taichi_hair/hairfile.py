@@ -19,12 +19,17 @@ float32 values and the raw header bytes as stored, so `write_hair(read_hair(f))`
 byte for byte.
 
 Any file that does not follow the format exactly raises `HairFileError` naming the file and the
-problem; the reader checks the sizes the header promises against the file size before reading
-any array, so a corrupt count cannot make it allocate or read past the end.
+problem; the reader checks every count the header promises against the file size before reading
+or allocating any array, so a corrupt count cannot make it allocate or read past the end, and it
+reads regular files only (a device such as /dev/zero is refused). Both readers also refuse
+non-finite values (points, per-point arrays, the header's defaults) and coordinates beyond
++-MAX_COORDINATE (1e6 file units). Writers raise HairFileError naming the path for anything the
+operating system refuses (a missing directory, no permission, a full disk).
 """
 
 from dataclasses import dataclass, field
 import os
+import stat
 import struct
 
 import numpy as np
@@ -38,6 +43,7 @@ assert _HEADER.size == HEADER_SIZE  # layout constant, not user input
 SEGMENTS_BIT, POINTS_BIT, THICKNESS_BIT, TRANSPARENCY_BIT, COLOUR_BIT = 1, 2, 4, 8, 16
 _KNOWN_BITS = SEGMENTS_BIT | POINTS_BIT | THICKNESS_BIT | TRANSPARENCY_BIT | COLOUR_BIT
 MAX_SEGMENTS = 65535  # segments are stored as uint16
+MAX_COORDINATE = 1e6  # file units: 10 km in centimetres; beyond it float32 distances lose the hair
 
 
 class HairFileError(ValueError):
@@ -118,33 +124,26 @@ class HairFile:
 
 
 def read_hair(path) -> HairFile:
-    """Read a `.hair` file; raises HairFileError naming `path` and the problem."""
+    """Read a `.hair` file; raises HairFileError naming `path` and the problem. Every count in
+    the header is checked against the file's size before anything is allocated, and only
+    regular files are read (a device such as /dev/zero is refused, not read forever)."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
-            data = f.read()
+            size = _regular_file_size(path, f)
+            header = f.read(HEADER_SIZE)
+            if len(header) < HEADER_SIZE:
+                raise HairFileError(f"{path}: truncated header: the file has {len(header)} bytes, "
+                                    f"a .hair header needs {HEADER_SIZE}")
+            (sig, n_strands, n_points, flags, d_seg, d_thick, d_transp, c0, c1, c2,
+             info) = _HEADER.unpack(header)
+            _check_header(path, size, sig, n_strands, n_points, flags, d_seg)
+            data = header + f.read(size - HEADER_SIZE)
     except OSError as exc:
-        raise HairFileError(f"{path}: cannot read the file ({exc.strerror})") from exc
-    if len(data) < HEADER_SIZE:
-        raise HairFileError(f"{path}: truncated header: the file has {len(data)} bytes, "
-                            f"a .hair header needs {HEADER_SIZE}")
-    (sig, n_strands, n_points, flags, d_seg, d_thick, d_transp, c0, c1, c2,
-     info) = _HEADER.unpack_from(data)
-    if sig != SIGNATURE:
-        raise HairFileError(f"{path}: bad signature {sig!r}, expected {SIGNATURE!r}: not a .hair file")
-    if flags & ~_KNOWN_BITS:
-        raise HairFileError(f"{path}: unknown flag bits {flags & ~_KNOWN_BITS:#x} in the header "
-                            f"(flags {flags:#x}); only bits 0-4 are defined")
-    if not flags & POINTS_BIT:
-        raise HairFileError(f"{path}: the header has no points array (flags {flags:#x}); nothing to load")
+        raise HairFileError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+    if len(data) != size:
+        raise HairFileError(f"{path}: the file changed size while being read")
     layout = _layout(flags, n_strands, n_points)
-    expected = HEADER_SIZE + sum(size for _, _, size in layout)
-    if len(data) < expected:
-        raise HairFileError(f"{path}: truncated arrays: the header promises {n_strands} strands and "
-                            f"{n_points} points ({expected} bytes), the file has {len(data)} bytes")
-    if len(data) > expected:
-        raise HairFileError(f"{path}: the file has {len(data) - expected} bytes more than the header "
-                            f"describes ({expected} bytes for {n_strands} strands, {n_points} points)")
     arrays, offset = {}, HEADER_SIZE
     for name, dtype, size in layout:
         arrays[name] = np.frombuffer(data, dtype=dtype, count=size // np.dtype(dtype).itemsize,
@@ -170,14 +169,16 @@ def write_hair(path, hair) -> None:
     """Write `hair` (a HairFile, or a list of [N_i, 3] strands) to `path` as a `.hair` file.
 
     Raises HairFileError naming `path` if the data cannot be stored in the format (strands with
-    fewer than 2 or more than 65536 nodes, non-finite values, array sizes that disagree)."""
+    fewer than 2 or more than 65536 nodes, non-finite values, array sizes that disagree) or
+    the operating system refuses the write (OSError)."""
     path = os.fspath(path)
     if not isinstance(hair, HairFile):
         hair = HairFile.from_strands(hair)
     counts = np.asarray(hair.counts, dtype=np.int64)
     points = np.asarray(hair.points, dtype=np.float32).reshape(-1, 3)
     problem = _check(HairFile(points, counts, hair.thickness, hair.transparency, hair.colour,
-                              hair.default_segments, has_segments=hair.has_segments), len(points))
+                              hair.default_segments, hair.default_thickness, hair.default_transparency,
+                              tuple(hair.default_colour), has_segments=hair.has_segments), len(points))
     if problem is None and len(hair.info) != INFO_SIZE:
         problem = f"info must be exactly {INFO_SIZE} bytes, got {len(hair.info)}"
     if problem:
@@ -195,10 +196,48 @@ def write_hair(path, hair) -> None:
     header = _HEADER.pack(SIGNATURE, len(counts), len(points), flags, int(hair.default_segments),
                           float(hair.default_thickness), float(hair.default_transparency),
                           *(float(c) for c in hair.default_colour), bytes(hair.info))
-    with open(path, "wb") as f:
-        f.write(header)
-        for chunk in chunks:
-            f.write(chunk)
+    try:
+        with open(path, "wb") as f:
+            f.write(header)
+            for chunk in chunks:
+                f.write(chunk)
+    except OSError as exc:
+        raise HairFileError(f"{path}: cannot write the file ({exc.strerror or exc})") from exc
+
+
+def _regular_file_size(path, f) -> int:
+    """Size [bytes] of the open file f, or HairFileError when it is not a regular file."""
+    info = os.fstat(f.fileno())
+    if not stat.S_ISREG(info.st_mode):
+        raise HairFileError(f"{path}: not a regular file (a device, pipe or directory); "
+                            f"give the path of a .hair file")
+    return info.st_size
+
+
+def _check_header(path, size, sig, n_strands, n_points, flags, d_seg):
+    """Raise HairFileError unless the header's signature, flags and counts fit a file of `size`
+    bytes: checked with Python integers before any array is allocated."""
+    if sig != SIGNATURE:
+        raise HairFileError(f"{path}: bad signature {sig!r}, expected {SIGNATURE!r}: not a .hair file")
+    if flags & ~_KNOWN_BITS:
+        raise HairFileError(f"{path}: unknown flag bits {flags & ~_KNOWN_BITS:#x} in the header "
+                            f"(flags {flags:#x}); only bits 0-4 are defined")
+    if not flags & POINTS_BIT:
+        raise HairFileError(f"{path}: the header has no points array (flags {flags:#x}); nothing to load")
+    expected = HEADER_SIZE + sum(n for _, _, n in _layout(flags, n_strands, n_points))
+    if size < expected:
+        raise HairFileError(f"{path}: truncated arrays: the header promises {n_strands} strands and "
+                            f"{n_points} points ({expected} bytes), the file has {size} bytes")
+    if size > expected:
+        raise HairFileError(f"{path}: the file has {size - expected} bytes more than the header "
+                            f"describes ({expected} bytes for {n_strands} strands, {n_points} points)")
+    if 2 * n_strands > n_points:
+        raise HairFileError(f"{path}: the header promises {n_strands} strands but only {n_points} "
+                            f"points; every strand needs at least 2 points")
+    if not flags & SEGMENTS_BIT and n_strands * (d_seg + 1) != n_points:
+        raise HairFileError(f"{path}: without a segments array every strand has default_segments + 1 = "
+                            f"{d_seg + 1} points: {n_strands} strands need {n_strands * (d_seg + 1)} "
+                            f"points, the header gives {n_points}")
 
 
 def _layout(flags, n_strands, n_points):
@@ -222,6 +261,10 @@ def _check(hair, n_points):
         bad = int(np.flatnonzero((counts < 2) | (counts > MAX_SEGMENTS + 1))[0])
         return (f"strand {bad} has {int(counts[bad])} points; every strand needs 2 to "
                 f"{MAX_SEGMENTS + 1} points")
+    defaults = (hair.default_thickness, hair.default_transparency, *hair.default_colour)
+    if not all(np.isfinite(np.float64(v)) for v in defaults):
+        return (f"the header's default thickness, transparency and colour must be finite, got "
+                f"{hair.default_thickness}, {hair.default_transparency}, {tuple(hair.default_colour)}")
     total = int(counts.sum())
     if total != n_points:
         return (f"the strand point counts (segments + 1) add up to {total} but the file holds "
@@ -237,6 +280,15 @@ def _check(hair, n_points):
             p = int(bad[0] // width)
             strand = int(np.searchsorted(np.cumsum(counts), p, side="right"))
             return f"{name} of point {p} (strand {strand}) is not finite (NaN or inf)"
+    return _coordinate_problem(np.asarray(hair.points, dtype=np.float64).reshape(-1, 3), "point")
+
+
+def _coordinate_problem(points, what):
+    """A sentence if a coordinate of points [P, 3] is beyond +-MAX_COORDINATE, else None."""
+    big = np.flatnonzero(np.abs(points).max(axis=1, initial=0.0) > MAX_COORDINATE) if len(points) else []
+    if len(big):
+        return (f"{what} {int(big[0])} has coordinates {points[big[0]].tolist()}; coordinates must lie "
+                f"within +-{MAX_COORDINATE:g} file units")
     return None
 
 
@@ -253,6 +305,7 @@ def read_obj_polylines(path) -> list:
     path = os.fspath(path)
     try:
         with open(path, "r", encoding="utf-8", errors="replace") as f:
+            _regular_file_size(path, f)
             text = f.read()
     except OSError as exc:
         raise HairFileError(f"{path}: cannot read the file ({exc.strerror})") from exc
@@ -266,6 +319,9 @@ def read_obj_polylines(path) -> list:
                 xyz = [float(w) for w in words[1:4]]
                 if len(xyz) != 3 or not all(np.isfinite(xyz)):
                     raise ValueError(f"vertex needs 3 finite coordinates, got {words[1:]}")
+                if max(abs(c) for c in xyz) > MAX_COORDINATE:
+                    raise ValueError(f"vertex coordinates must lie within +-{MAX_COORDINATE:g} file units, "
+                                     f"got {words[1:4]}")
                 vertices.append(xyz)
             elif words[0] == "l":
                 lines.append(_polyline_indices(words[1:], len(vertices)))
@@ -312,7 +368,8 @@ def write_obj_polylines(path, strands, comment: str = "taichi_hair polylines") -
     """Write strands (list of [N_i, 3] arrays, or [S, N, 3]) as OBJ `v` + `l` lines.
 
     Coordinates are written with 17 significant digits, so float64 values read back exactly.
-    Raises HairFileError naming `path` for a strand with fewer than 2 nodes or non-finite values.
+    Raises HairFileError naming `path` for a strand with fewer than 2 nodes or non-finite values,
+    and for an OSError while writing.
     """
     path = os.fspath(path)
     arrays = [np.asarray(s, dtype=np.float64) for s in strands]
@@ -327,5 +384,8 @@ def write_obj_polylines(path, strands, comment: str = "taichi_hair polylines") -
         out.extend(f"v {x!r} {y!r} {z!r}\n" for x, y, z in s.tolist())
         out.append("l " + " ".join(str(base + k) for k in range(len(s))) + "\n")
         base += len(s)
-    with open(path, "w", encoding="utf-8") as f:
-        f.writelines(out)
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.writelines(out)
+    except OSError as exc:
+        raise HairFileError(f"{path}: cannot write the file ({exc.strerror or exc})") from exc

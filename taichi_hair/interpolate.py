@@ -30,6 +30,7 @@ import numpy as np
 import taichi as ti
 
 from .runtime import ensure_init, precision
+from .validation import is_real
 from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
 
@@ -454,7 +455,7 @@ def _check_rest(rest_guides, rest_shapes, roots, dense, n_nodes):
 
 
 def _check_head(head, margin):
-    if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
+    if not (is_real(margin) and math.isfinite(margin) and margin >= 0):
         raise ValueError(f"head_margin must be a finite number >= 0 m, got {margin!r}")
     if head is None or callable(head):
         return head, None
@@ -492,10 +493,10 @@ def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variat
                                       ("length_variation", length_variation, 0.0, 1.0, ""),
                                       ("curl_phase_variation", curl_phase_variation, 0.0,
                                        (n_nodes - 1) / 2, "edges")):
-        if not (isinstance(value, (int, float)) and lo <= value <= hi and not (hi == 1.0 and value == 1.0)):
+        if not (is_real(value) and lo <= value <= hi and not (hi == 1.0 and value == 1.0)):
             raise ValueError(f"{name} must be a number in [{lo:g}, {hi:g}{')' if hi == 1.0 else ']'} "
                              f"{unit}, got {value!r}".replace(" ,", ","))
-    if clump_radius is not None and not (isinstance(clump_radius, (int, float)) and 0 <= clump_radius < math.inf):
+    if clump_radius is not None and not (is_real(clump_radius) and 0 <= clump_radius < math.inf):
         raise ValueError(f"clump_radius must be None or a finite number >= 0 m, got {clump_radius!r}")
     rng = np.random.default_rng(seed)
     u_len, u_phase, u_frizz = rng.random(n_dense), rng.random(n_dense), rng.random(n_dense)

@@ -13,9 +13,11 @@ import math
 
 import numpy as np
 
+from .validation import is_real
+
 
 def _check_positive(name: str, value: float, unit: str) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    if not (is_real(value) and math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a finite number > 0 {unit}, got {value!r}")
 
 
@@ -42,8 +44,19 @@ class Material:
         _check_positive("radius", self.radius, "m")
         _check_positive("density", self.density, "kg/m^3")
         e = self.ellipticity
-        if not (isinstance(e, (int, float)) and math.isfinite(e) and e >= 1.0):
+        if not (is_real(e) and math.isfinite(e) and e >= 1.0):
             raise ValueError(f"ellipticity must be a finite number >= 1 (major/minor axis ratio), got {e!r}")
+        for name in ("youngs_modulus", "shear_modulus", "radius", "density", "ellipticity"):
+            object.__setattr__(self, name, float(getattr(self, name)))  # np.float32 in, float64 math
+        try:
+            derived = (*self.bending_stiffness, self.twist_stiffness, self.linear_density)
+        except OverflowError:
+            derived = (math.inf,)
+        if not all(math.isfinite(v) and v > 0 for v in derived):
+            raise ValueError(f"youngs_modulus, shear_modulus, radius, density and ellipticity give a "
+                             f"bending or twist stiffness or a linear density out of floating-point range "
+                             f"(radius {self.radius!r} m, youngs_modulus {self.youngs_modulus!r} Pa); "
+                             f"use physical values (hair: radius 20e-6 to 100e-6 m, E 2e9 to 5e9 Pa)")
 
     @property
     def semi_axes(self) -> tuple[float, float]:

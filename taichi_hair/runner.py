@@ -16,6 +16,7 @@ import numpy as np
 
 from .colliders import _scalar, _vec
 from .progress import ProgressBar
+from .scene import Scene
 
 STATE_FILE = "state.npz"
 PROGRESS_FILE = "progress.json"
@@ -24,7 +25,8 @@ PROGRESS_FILE = "progress.json"
 @dataclass(frozen=True, kw_only=True)
 class Shot:
     """How a scene is filmed: frames at fps (one frame = 1/fps s of simulated time), the
-    simulator's dt [s], image size, a look-at camera (eye, target [m], vertical fov [deg], z up)
+    simulator's largest step dt [s] (at most one frame; fitted down so that whole steps fill a
+    frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up)
     orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
     and fibre width [m], supersampling, and the PNG/MP4 names."""
@@ -55,10 +57,20 @@ class Shot:
         _scalar("hair_width", self.hair_width, "m", inclusive=False)
         _vec("eye", self.eye)
         _vec("target", self.target)
+        if self.dt > 1.0 / self.fps:
+            raise ValueError(f"dt must be at most one frame, 1/fps = {1.0 / self.fps:.4g} s at fps = "
+                             f"{self.fps}, got {self.dt!r}")
 
     @property
     def steps_per_frame(self) -> int:
-        return max(1, int(round(1.0 / (self.fps * self.dt))))
+        """Steps per frame: the fewest steps of at most dt that fill one frame (1/fps s)."""
+        return max(1, math.ceil(1.0 / (self.fps * self.dt) - 1e-9))
+
+    @property
+    def frame_dt(self) -> float:
+        """The simulator's step [s]: dt fitted to the frame, 1 / (fps steps_per_frame) <= dt, so
+        frame k ends at exactly k / fps (24 fps, dt 1 ms: 42 steps of 0.992 ms)."""
+        return 1.0 / (self.fps * self.steps_per_frame)
 
 
 def load_scene_module(path):
@@ -71,10 +83,32 @@ def load_scene_module(path):
         raise ValueError(f"scene script {path} does not exist")
     spec = importlib.util.spec_from_file_location(f"taichi_hair_scene_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the script's own error: name it (the CLI's --debug shows where)
+        raise SceneScriptError(f"scene script {path} failed to load: {type(err).__name__}: {err}") from err
     if not callable(getattr(module, "build", None)):
         raise ValueError(f"scene script {path} must define build() returning a taichi_hair.Scene")
     return module
+
+
+class SceneScriptError(ValueError):
+    """A scene script that fails to load, or whose build() / shot() raises or returns the wrong
+    type: a user error (the CLI prints one line; --debug shows the traceback)."""
+
+
+def _call_script(script, module, name, expected):
+    """module.name(), checked to be an `expected`; SceneScriptError naming the script otherwise."""
+    try:
+        value = getattr(module, name)()
+    except ValueError:
+        raise  # already names its parameter
+    except Exception as err:
+        raise SceneScriptError(f"scene script {script}: {name}() raised {type(err).__name__}: {err}") from err
+    if not isinstance(value, expected):
+        raise SceneScriptError(f"scene script {script}: {name}() must return a taichi_hair "
+                               f"{expected.__name__}, got {type(value).__name__}")
+    return value
 
 
 def scalp_interpolator(scene, simulator, n_dense, seed=0):
@@ -132,27 +166,29 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     from .simulator import Simulator
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
-    scene = module.build()
-    shot = module.shot() if callable(getattr(module, "shot", None)) else Shot()
+    scene = _call_script(script, module, "build", Scene)
+    shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
     if overrides:
         shot = Shot(**{**shot.__dict__, **overrides})
     total = shot.frames if frames is None else frames
     out = Path(out_dir)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
-    sim = Simulator.from_scene(scene, dt=shot.dt)
+    try:
+        (out / "frames").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"{out}: cannot create the output folder (--out): {err.strerror or err}") from None
+    sim = Simulator.from_scene(scene, dt=shot.frame_dt)
     if callable(getattr(module, "setup", None)):
         module.setup(scene, sim)
     interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))
               else scalp_interpolator(scene, sim, shot.dense_strands))
     writer = FrameWriter(shot, scene)
-    done = _resume_point(out, sim) if resume else 0
+    done = _resume_point(out, sim, shot) if resume else 0
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
         bar.update(done)
         for frame in range(done, total):
             _render_one(out, frame, shot, sim, interp, writer, times)
-            sim.save_state(out / STATE_FILE)
-            (out / PROGRESS_FILE).write_text(json.dumps({"frames_done": frame + 1, "time": sim.time}))
+            _checkpoint(out, sim, shot, frame + 1)
             bar.update(1)
     video = writer.render.write_mp4(out / f"{Path(script).stem}.mp4",
                                     (writer.render.read_png(out / "frames" / f"frame_{k:05d}.png")
@@ -160,17 +196,44 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     return _summary(script, total, done, times, video, sim)
 
 
-def _resume_point(out, sim) -> int:
-    """Frames already finished: restore the simulator from the last checkpoint."""
-    progress = out / PROGRESS_FILE
-    if not (progress.exists() and (out / STATE_FILE).exists()):
+def _checkpoint(out, sim, shot, frames_done):
+    """One atomic record: the state file holds the frame count and frame step with the state
+    (written to a temporary file and renamed); progress.json is a copy for people and monitors,
+    also replaced atomically, never read back."""
+    sim.save_state(out / STATE_FILE, extra={"frames_done": frames_done, "frame_dt": shot.frame_dt,
+                                             "fps": shot.fps})
+    tmp = out / (PROGRESS_FILE + ".tmp")
+    tmp.write_text(json.dumps({"frames_done": frames_done, "time": sim.time}))
+    tmp.replace(out / PROGRESS_FILE)
+
+
+def _resume_point(out, sim, shot) -> int:
+    """Frames already finished: restore the simulator from the last checkpoint, after checking
+    that the record is whole and agrees with itself and this shot (ValueError naming the file)."""
+    state = out / STATE_FILE
+    if not state.exists():
         return 0
-    sim.load_state(out / STATE_FILE)
-    done = int(json.loads(progress.read_text())["frames_done"])
+    try:
+        with np.load(state) as data:
+            done, frame_dt, fps, t = (int(data["extra_frames_done"]), float(data["extra_frame_dt"]),
+                                      int(data["extra_fps"]), float(data["time"]))
+    except KeyError:
+        raise ValueError(f"{state}: the checkpoint holds no frame count (written by an older taichi_hair?); "
+                         f"delete {out} to start over") from None
+    except Exception as err:  # a damaged zip or array: numpy raises several types
+        raise ValueError(f"{state}: not a readable checkpoint ({type(err).__name__}: {err}); "
+                         f"delete {out} to start over") from None
+    if (fps, frame_dt) != (shot.fps, shot.frame_dt):
+        raise ValueError(f"{state}: the checkpoint was made at fps {fps} with step {frame_dt:.6g} s, this shot "
+                         f"runs at fps {shot.fps} with step {shot.frame_dt:.6g} s; delete {out} to start over")
+    if not (0 <= done and abs(t - done / fps) <= 1e-6 * max(1.0, t)):
+        raise ValueError(f"{state}: inconsistent checkpoint: {done} frames done at fps {fps} is "
+                         f"{done / fps:.6g} s, but its state is at t = {t:.6g} s; delete {out} to start over")
     missing = [k for k in range(done) if not (out / "frames" / f"frame_{k:05d}.png").exists()]
     if missing:
         raise ValueError(f"{out}: checkpoint says {done} frames are done but frame {missing[0]} is missing; "
                          f"delete {out} to start over")
+    sim.load_state(state)
     return done
 
 

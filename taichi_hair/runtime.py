@@ -4,6 +4,9 @@
 precision chosen here, so one call decides float32 or float64 for the whole process.
 """
 
+import contextlib
+import sys
+
 import taichi as ti
 
 _ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
@@ -47,7 +50,8 @@ def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, 
         # fast_math rewrites float64 sqrt as float32 on CUDA
         options["fast_math"] = False
     options.update(kwargs)
-    ti.init(**options)
+    with contextlib.redirect_stdout(sys.stderr):  # "[Taichi] Starting on arch=...": not data
+        ti.init(**options)
     _state["arch"], _state["precision"] = arch, precision
 
 

@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from .validation import is_real
+
 PAIRS_PER_CHUNK = 1 << 19  # point-triangle pairs evaluated at once (~0.3 GB of temporaries)
 BAND_CELLS = 1  # exact distances to every triangle within this many cells of its bounding box
 MAX_SWEEP_ROUNDS = 12  # rounds of six axis sweeps; they stop when a round changes nothing
@@ -50,7 +52,7 @@ class SignedDistanceGrid:
             raise ValueError(f"values must be a finite [nx, ny, nz] array with every n >= 2, got shape {values.shape}")
         if origin.shape != (3,) or not np.all(np.isfinite(origin)):
             raise ValueError(f"origin must be a finite 3-vector [m], got {self.origin!r}")
-        if not (isinstance(self.spacing, (int, float)) and math.isfinite(self.spacing) and self.spacing > 0):
+        if not (is_real(self.spacing) and math.isfinite(self.spacing) and self.spacing > 0):
             raise ValueError(f"spacing must be a finite number > 0 m, got {self.spacing!r}")
         values.setflags(write=False)
         origin.setflags(write=False)
@@ -73,9 +75,9 @@ class SignedDistanceGrid:
         """Grid over the mesh's bounding box grown by `padding` [m] on every side, step
         `spacing` [m]. vertices [V, 3] m; faces [F, 3] int, closed and outward oriented
         (counter-clockwise seen from outside), else ValueError."""
-        if not (isinstance(spacing, (int, float)) and math.isfinite(spacing) and spacing > 0):
+        if not (is_real(spacing) and math.isfinite(spacing) and spacing > 0):
             raise ValueError(f"spacing must be a finite number > 0 m, got {spacing!r}")
-        if not (isinstance(padding, (int, float)) and math.isfinite(padding) and padding >= 0):
+        if not (is_real(padding) and math.isfinite(padding) and padding >= 0):
             raise ValueError(f"padding must be a finite number >= 0 m, got {padding!r}")
         mesh = _Mesh(vertices, faces)
         lo = mesh.v.min(axis=0) - padding

@@ -11,23 +11,27 @@ import numpy as np
 
 from . import arrays
 from .frames import update_frames, update_material_frames
-from .groom import Groom
+from .groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
 from .progress import ProgressBar
 from .rod import strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
 from .state import build
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .collisions import root_keeps_collider
+from .scene import _host_distance
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
 from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
-from .step import (FAILED_ABOVE, StepPlan, advance, kmoch_step, place_roots, project_constraints,
+from .validation import is_integer, is_real
+from .step import (FAILED_ABOVE, STALL_BELOW, StepPlan, advance, kmoch_step, place_roots, project_constraints,
                    run_twist_update, strand_mechanical_energy, total_elastic_forces)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
+DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
 
@@ -40,7 +44,7 @@ def _vector3(name, value):
 
 
 def _positive(name, value, unit, upper=math.inf):
-    if not (isinstance(value, (int, float)) and 0 < value < upper and math.isfinite(value)):
+    if not (is_real(value) and 0 < value < upper and math.isfinite(value)):
         bound = f" and < {upper:g}" if upper < math.inf else ""
         raise ValueError(f"{name} must be > 0{bound} {unit}, got {value!r}")
     return float(value)
@@ -67,6 +71,8 @@ class Simulator:
     colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
     max_speed [m/s]: a node faster than this counts as a blow-up.
+    max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
+        bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
     root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
         the head-carried root frame from node 0 on, docs/model.md "The clamp at the root"),
         "pinned" (node 0 rides on the head, node 1 is free: the strand swings freely about its
@@ -85,7 +91,7 @@ class Simulator:
                  twist_tol: float | None = None, twist_iterations: int = 100, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
-                 root: str = "clamped"):
+                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction)
@@ -116,6 +122,8 @@ class Simulator:
             raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
                              "(human hair in air: about 1e-4 to 1e-3)")
         self.stable_dt = min(self.stable_dt, wind_bound(groom, _max_air_speed(wind), stability_factor))
+        self.max_substeps = _check_max_substeps(max_substeps)
+        self._bound_inputs = (drag, wind, stability_factor)
         self.substeps = self._substeps_for(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
@@ -133,6 +141,7 @@ class Simulator:
         self._head = self._head_prev = (np.eye(3), np.zeros(3))
         if root_motion is not None:
             self._place_groom(*self._head_at(0.0))
+        self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_start(strict, stability_factor)
@@ -160,7 +169,36 @@ class Simulator:
                              f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, "
                              f"grab springs and the starting shape); lower dt or pass strict=False to "
                              f"substep automatically")
-        return math.ceil(self.dt / self.stable_dt)
+        substeps = math.ceil(self.dt / self.stable_dt)
+        if substeps > self.max_substeps:
+            raise ValueError(f"dt = {self.dt:.3g} s would need {substeps} substeps of at most "
+                             f"{self.stable_dt:.3g} s, more than max_substeps = {self.max_substeps}; the "
+                             f"stability bound is set by {self._bound_cause()}. Change that, lower dt, or "
+                             f"raise max_substeps")
+        return substeps
+
+    def _bound_cause(self) -> str:
+        """Which input sets stable_dt, in words naming the parameter (for the substep refusal).
+        Drag is named when it at least halves the bending bound; the start shape when contacts
+        tightened the bound below every input's own."""
+        drag, wind, factor = self._bound_inputs
+        materials = self.model.materials
+        bend = stable_time_step(self.groom, materials, 0.0, factor)
+        with_drag = stable_time_step(self.groom, materials, drag, factor)
+        if with_drag < 0.5 * bend:
+            candidates = [(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)")]
+        else:
+            candidates = [(with_drag, "the material's bending stiffness (youngs_modulus, radius) over the "
+                                      "shortest segment and the sharpest rest turn of the groom")]
+        air = _max_air_speed(wind)
+        candidates.append((wind_bound(self.groom, air, factor),
+                           f"the wind (fastest air {air:.3g} m/s must not move a node a segment per step)"))
+        candidates += [(_grab_bound(self.model, g, factor), f"touch[{k}].stiffness = {g.stiffness:g} N/m")
+                       for k, g in enumerate(self.touch) if isinstance(g, Grab)]
+        bound, cause = min(candidates, key=lambda c: c[0])
+        if bound > 1.01 * self.stable_dt:
+            return "the shape the colliders left the groom in at the start (sharp bends)"
+        return cause
 
     # ---- head transform -----------------------------------------------------------------
     def _head_at(self, t: float):
@@ -181,6 +219,25 @@ class Simulator:
         st, md = self.state, self.model
         if reference or (reference is None and not self.plan.pinned_root):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+
+    def _colliders_holding_roots(self, colliders) -> list[tuple[int, int]]:
+        """(strand, collider index) pairs whose root starts inside the collider by more than its
+        margin: the contact stage skips them (collisions.root_keeps_collider), so say so once.
+        Head-attached colliders see the roots in head coordinates, world ones at the start pose."""
+        head_roots = self.groom.positions[:, 0]
+        world_roots = self.positions()[:, 0]
+        skipped = []
+        for k, c in enumerate(colliders):
+            roots = head_roots if c.attached == "head" else world_roots
+            depth = _host_distance(c, roots)
+            skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
+        if skipped:
+            kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})
+            warnings.warn(f"{len(skipped)} strand root(s) (first: strand {skipped[0][0]}) lie inside "
+                          f"{', '.join(kinds)} by more than its margin: those strands do not collide with "
+                          f"it (sim.skipped_colliders lists the pairs); move the roots onto the surface "
+                          f"to keep the hair out", RuntimeWarning, stacklevel=3)
+        return skipped
 
     def _resolve_initial_contacts(self):
         """Move groomed nodes that start inside a collider's margin out of it before the first
@@ -269,8 +326,9 @@ class Simulator:
         where this call began and SimulationDiverged is raised. With `timers` (a callable
         name -> context manager that synchronises), or with hair interaction, every stage runs
         as its own kernel; otherwise many substeps run in one fused launch."""
-        if not (isinstance(n, int) and n >= 0):
+        if not (is_integer(n) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
+        n = int(n)
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps
@@ -312,7 +370,7 @@ class Simulator:
     def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
         """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
         stderr. A blow-up leaves the state at the end of the last healthy chunk."""
-        if not (isinstance(seconds, (int, float)) and seconds >= 0 and math.isfinite(seconds)):
+        if not (is_real(seconds) and seconds >= 0 and math.isfinite(seconds)):
             raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
         total = int(round(seconds / self.dt))
         per_chunk = max(1, int(round(chunk / self.dt)))
@@ -362,14 +420,17 @@ class Simulator:
             step=step, strand=int(first))
 
     # ---- checkpoints --------------------------------------------------------------------
-    def save_state(self, path) -> None:
+    def save_state(self, path, extra=None) -> None:
         """Write the dynamic state (positions, velocities, material angles, time, step count,
         head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
-        crash mid-write leaves the previous checkpoint intact."""
+        crash mid-write leaves the previous checkpoint intact. `extra`: a dict of numbers or
+        arrays stored alongside as `extra_<name>` (the runner's frame count), part of the same
+        atomic record; `load_state` ignores them."""
         import os
         path = os.fspath(path)
         tmp = path + ".tmp.npz"
-        np.savez(tmp, x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
+        np.savez(tmp, **{f"extra_{k}": v for k, v in (extra or {}).items()},
+                 x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
                  theta=self.state.theta.to_numpy(), root_t=self.state.root_t.to_numpy(),
                  root_u=self.state.root_u.to_numpy(), time=self.time, steps=self.steps_taken,
                  head=_pose(*self._head), head_prev=_pose(*self._head_prev),
@@ -409,8 +470,12 @@ class Simulator:
             return
         force = np.asarray(force, dtype=np.float64)
         shape = (self.groom.n_strands, self.groom.max_nodes, 3)
-        if force.shape != shape or not np.all(np.isfinite(force)):
-            raise ValueError(f"user forces must be finite with shape {list(shape)}, got {list(force.shape)}")
+        if force.shape != shape:
+            raise ValueError(f"user forces must have shape {list(shape)} (strands, nodes, xyz) N, "
+                             f"got {list(force.shape)}")
+        if not np.all(np.isfinite(force)):
+            s, i = np.argwhere(~np.isfinite(force))[0][:2]
+            raise ValueError(f"user forces must be finite; strand {s} node {i} is {force[s, i]} N")
         if self.control.user_force is None:
             self.control.user_force = arrays.vectors(3, shape[:2])
         self.control.user_force.from_numpy(force.astype(arrays.np_float()))
@@ -418,8 +483,10 @@ class Simulator:
     def stats(self, reset: bool = False) -> dict:
         """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
         projection iterations (max), its final residual (max), how many strand-steps ended above
-        projection_tol at the iteration cap (projection_cap_hits) or stalled at the precision's
-        rounding floor (projection_stalls), and the twist solve's iterations and residual."""
+        projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
+        an iteration removed under 10 % of a residual already below projection_stall_below,
+        1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
+        lengths in any precision), and the twist solve's iterations and residual."""
         counters = self.state.counters.to_numpy()
         residuals = self.state.residuals.to_numpy()
         report = {
@@ -430,6 +497,7 @@ class Simulator:
             "projection_residual_max": float(residuals[:, 0].max()),
             "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
             "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
+            "projection_stall_below": STALL_BELOW,
             "twist": self.twist,
         }
         if self.twist != "none":  # kmoch solves round strands exactly too
@@ -462,8 +530,11 @@ class Simulator:
 
     def set_positions(self, x) -> None:
         """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
-        are kept (call `update_twist` to re-solve them)."""
-        self.state.x.from_numpy(self._checked_nodes("positions", x))
+        are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
+        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
+        x = self._checked_nodes("positions", x)
+        _check_strand_geometry(x, self.groom.node_counts)
+        self.state.x.from_numpy(x)
         self.update_frames()
 
     def set_velocities(self, v) -> None:
@@ -580,6 +651,29 @@ class Simulator:
         return out.to_numpy().astype(np.float64)
 
 
+def _check_strand_geometry(x, node_counts):
+    """ValueError naming the first strand and node of x [S, N, 3] m whose segment is shorter than
+    MIN_SEGMENT_LENGTH or whose turn exceeds MAX_TURNING_ANGLE_DEG (the Groom's own rules: the
+    curvature binormal is undefined there, so the energy would be NaN). Vectorised over strands."""
+    x = np.asarray(x, dtype=np.float64)
+    edges = np.diff(x, axis=1)
+    lengths = np.linalg.norm(edges, axis=2)
+    real = np.arange(x.shape[1] - 1)[None, :] < (np.asarray(node_counts)[:, None] - 1)
+    short = np.argwhere(real & (lengths < MIN_SEGMENT_LENGTH))
+    if len(short):
+        s, i = short[0]
+        raise ValueError(f"positions: strand {s} segment {i} (nodes {i}-{i + 1}) has length {lengths[s, i]:.3g} m; "
+                         f"segments must be >= {MIN_SEGMENT_LENGTH:g} m long (coincident nodes)")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_turn = np.sum(edges[:, 1:] * edges[:, :-1], axis=2) / (lengths[:, 1:] * lengths[:, :-1])
+    folded = np.argwhere(real[:, 1:] & (cos_turn < math.cos(math.radians(MAX_TURNING_ANGLE_DEG))))
+    if len(folded):
+        s, i = folded[0]
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_turn[s, i]))))
+        raise ValueError(f"positions: strand {s} turns by {angle:.1f} degrees at node {i + 1}; turning angles "
+                         f"must be <= {MAX_TURNING_ANGLE_DEG:g} degrees (the strand folds back on itself)")
+
+
 def default_projection_tol(groom: Groom) -> float:
     """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
     errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
@@ -614,6 +708,12 @@ def _grab_bound(model, grab, factor):
     return 2.0 * factor * math.sqrt(masses.min() / grab.stiffness)
 
 
+def _check_max_substeps(value) -> int:
+    if not (is_integer(value) and value >= 1):
+        raise ValueError(f"max_substeps must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                      wind, colliders, touch, hair_interaction):
     if not isinstance(groom, Groom):
@@ -622,9 +722,9 @@ def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag
         raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
-        if not (isinstance(value, int) and value >= 1):
+        if not (is_integer(value) and value >= 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if not (isinstance(drag, (int, float)) and math.isfinite(drag) and drag >= 0):
+    if not (is_real(drag) and math.isfinite(drag) and drag >= 0):
         raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
     if root_motion is not None and not callable(root_motion):
         raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")
