@@ -13,6 +13,13 @@ def thomas_solve(s, first, last, diag: ti.template(), upper: ti.template(), rhs:
         w = upper[s, j - 1] / diag[s, j - 1]
         diag[s, j] -= w * upper[s, j - 1]
         rhs[s, j] -= w * rhs[s, j - 1]
+    back_substitute(s, first, last, diag, upper, rhs)
+
+
+@ti.func
+def back_substitute(s, first, last, diag: ti.template(), upper: ti.template(), rhs: ti.template()):
+    """The backward sweep of a tridiagonal solve whose forward elimination left the pivots in
+    diag and the eliminated right-hand side in rhs (overwritten by the solution)."""
     for r in range(last - first + 1):
         j = last - r
         nxt = 0.0

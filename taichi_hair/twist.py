@@ -26,6 +26,7 @@ import taichi as ti
 
 from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2
 from .frames import material_directors
+from .linalg import back_substitute
 from .rod import add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_twist, twist_terms
 from .runtime import precision
 
@@ -125,12 +126,7 @@ def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.temp
             break
         decrement += rhs[s, j] * rhs[s, j] / diag[s, j]
     if positive:
-        for r in range(hi - lo + 1):
-            j = hi - r
-            nxt = 0.0
-            if j < hi:
-                nxt = upper[s, j] * rhs[s, j + 1]
-            rhs[s, j] = (rhs[s, j] - nxt) / diag[s, j]
+        back_substitute(s, lo, hi, diag, upper, rhs)
     return positive, decrement
 
 

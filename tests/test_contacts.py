@@ -46,7 +46,7 @@ def test_violent_shake_never_enters_the_head_and_roots_follow():
     head = th.Head.ellipsoid(radii=tuple(RADII), margin=0.002, friction=0.3)
     scene = th.Scene(groom=groom, head=head, motion=shake, drag=5e-4)
     sim = quiet(lambda: th.Simulator.from_scene(scene, dt=1e-3))
-    rest_roots = groom.positions[:, :2]
+    rest_roots = groom.positions[:, :1]  # the clamped root node
     deepest, root_error = np.inf, 0.0
     for _ in range(2000):
         sim.step(1)
@@ -54,8 +54,8 @@ def test_violent_shake_never_enters_the_head_and_roots_follow():
         x = sim.positions()
         local = (x - translation) @ rotation  # head coordinates: R^T (x - t)
         implicit = np.sum((local / RADII) ** 2, axis=2)  # < 1 inside the ellipsoid
-        deepest = min(deepest, implicit[:, 2:].min())
-        root_error = max(root_error, np.abs(x[:, :2] - (rest_roots @ rotation.T + translation)).max())
+        deepest = min(deepest, implicit[:, 1:].min())
+        root_error = max(root_error, np.abs(x[:, :1] - (rest_roots @ rotation.T + translation)).max())
     print(f"\nshake: smallest (x/a)^2+(y/b)^2+(z/c)^2 over free nodes {deepest:.4f} (1 = surface); "
           f"root error {root_error:.1e} m; stats {sim.stats()}")
     assert deepest >= 1.0  # outside the surface itself, not only within the margin
@@ -71,7 +71,7 @@ def hang_and_measure(interaction, seconds=1.2):
     x = sim.positions()
     # volume measures: mean distance of free nodes from the head's surface (implicit radius),
     # and the number of occupied 1 cm voxels
-    local = np.linalg.norm(x[:, 2:] / RADII, axis=2)
+    local = np.linalg.norm(x[:, 1:] / RADII, axis=2)
     voxels = len({tuple(v) for v in np.floor(x.reshape(-1, 3) / 0.01).astype(int)})
     return float(local.mean()), voxels
 
@@ -145,7 +145,7 @@ def test_hand_moves_the_hair_it_touches_and_no_other():
         baseline.step(15)
         touched.step(15)
         x = touched.positions()
-        inside = max(inside, 0.03 - np.linalg.norm(x[:, 2:] - hand_path(touched.time), axis=2).min())
+        inside = max(inside, 0.03 - np.linalg.norm(x[:, 1:] - hand_path(touched.time), axis=2).min())
     moved = np.abs(touched.positions() - baseline.positions()).max(axis=(1, 2))
     print(f"\nhand: displacement per strand vs untouched run [m]: {np.round(moved, 4)}; "
           f"deepest node inside the hand {inside:.2e} m")
@@ -233,7 +233,7 @@ def test_default_head_mesh_keeps_hair_out_while_shaking():
     for _ in range(6):
         sim.step(50)
         rotation, translation = sim.head_transform
-        local = (sim.positions()[:, 2:].reshape(-1, 3) - translation) @ rotation
+        local = (sim.positions()[:, 1:].reshape(-1, 3) - translation) @ rotation
         closest = min(closest, mesh_signed_distance(local, model.vertices, model.faces).min())
     print(f"\nmesh head: closest free node to the exact surface {closest * 1e3:.2f} mm (margin 2 mm)")
     assert closest > 0.0
