@@ -43,13 +43,31 @@ def _unit_vector(name, value):
     return v / np.linalg.norm(v)
 
 
+COVERED_CLEARANCE = 0.003  # [m] scalp this close to a capsule's surface (or inside) is covered
+
+
 def _scalp_triangles(head):
+    """Scalp faces: at least two scalp vertices, and none of the three inside or within
+    COVERED_CLEARANCE of one of the head model's capsules (skin the neck covers grows no hair:
+    a root there would sit inside the neck collider and the hair could not collide with it)."""
     if not isinstance(head, HeadModel):
         raise ValueError(f"head must be a taichi_hair.headmesh.HeadModel, got {type(head).__name__}")
     faces = head.scalp_faces(min_vertices=2)  # "most" of a triangle's vertices are scalp
+    covered = np.zeros(len(head.vertices), dtype=bool)
+    for p0, p1, radius in head.capsules:
+        covered |= _capsule_distance(head.vertices, np.asarray(p0), np.asarray(p1)) < radius + COVERED_CLEARANCE
+    faces = faces[~covered[head.faces[faces]].any(axis=1)]
     if len(faces) == 0:
-        raise ValueError("head.scalp marks no triangle (need >= 2 scalp vertices in some face)")
+        raise ValueError("head.scalp marks no triangle clear of the capsules (need >= 2 scalp "
+                         "vertices in some face)")
     return faces
+
+
+def _capsule_distance(points, p0, p1):
+    """Distance [m] of points [K, 3] from the segment p0-p1 (a capsule's axis)."""
+    axis = p1 - p0
+    t = np.clip((points - p0) @ axis / max(axis @ axis, 1e-300), 0.0, 1.0)
+    return np.linalg.norm(points - (p0 + t[:, None] * axis), axis=1)
 
 
 def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float | None = None,

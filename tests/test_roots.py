@@ -120,3 +120,18 @@ def test_sample_scalp_bad_inputs(head):
         sample_scalp(head, 0)
     with pytest.raises(ValueError, match="head"):
         sample_scalp("head", 10)
+
+
+def test_no_root_grows_under_the_neck(head):
+    """Skin the neck capsule covers grows no hair: every root, blue-noise or uniform, lies
+    outside each capsule by more than the colliders' default margin (2 mm), so no strand
+    starts inside a collider it would then have to ignore."""
+    for blue_noise in (True, False):
+        points, _ = sample_scalp(head, 3000, seed=2, blue_noise=blue_noise)
+        for p0, p1, radius in head.capsules:
+            p0, p1 = np.asarray(p0), np.asarray(p1)
+            axis = p1 - p0
+            t = np.clip((points - p0) @ axis / (axis @ axis), 0.0, 1.0)
+            gap = np.linalg.norm(points - (p0 + t[:, None] * axis), axis=1) - radius
+            print(f"\nclosest root to a capsule surface: {gap.min() * 1e3:.2f} mm")
+            assert gap.min() > 0.002
