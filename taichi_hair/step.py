@@ -26,7 +26,8 @@ from .linalg import thomas_solve
 from .pins import strand_carry_root_frame, strand_place_pins
 from .rod import elastic_forces, strand_elastic_forces
 from .state import COUNTERS
-from .twist import CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch, strand_twist_quasistatic
+from .twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch,
+                    strand_twist_quasistatic)
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 # root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
@@ -302,8 +303,8 @@ def advance_strands(
             strand_elastic_forces(s, ti.static(root_mode == 0), x, node_count, kb, m1, m2, root_t, root_u,
                                   rest_kappa, voronoi, stiffness, force)
             if ti.static(twist_mode == 1):
-                strand_kmoch_forces(s, ti.static(root_mode == 0), x, node_count, bishop_u, bishop_v, kb, theta,
-                                    root_t, rest_kappa, rest_twist, voronoi, stiffness, force)
+                strand_kmoch_forces(s, ti.static(root_mode == 0), x, node_count, bishop_u, bishop_v, kb,
+                                    theta, root_t, rest_kappa, rest_twist, voronoi, stiffness, force)
             if ti.static(external or touch):
                 strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
                                        voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)

@@ -35,7 +35,7 @@ PI = 3.141592653589793
 MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
 ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver
 MAX_HALVINGS = 40
-# how a quasistatic solve ended (TWIST_STATUS[...]): callers count stalls and refuse caps
+# how a quasistatic solve ended: callers count stalls and refuse caps
 CONVERGED, STALLED, CAPPED = 0, 1, 2
 
 
