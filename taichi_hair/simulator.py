@@ -182,14 +182,17 @@ class Simulator:
         Drag is named when it at least halves the bending bound; the start shape when contacts
         tightened the bound below every input's own."""
         drag, wind, factor = self._bound_inputs
-        materials = self.model.materials
-        bend = stable_time_step(self.groom, materials, 0.0, factor)
-        with_drag = stable_time_step(self.groom, materials, drag, factor)
+        materials, kmoch = self.model.materials, self.twist == "kmoch"
+        bend = stable_time_step(self.groom, materials, 0.0, factor, kmoch=kmoch)
+        with_drag = stable_time_step(self.groom, materials, drag, factor, kmoch=kmoch)
         if with_drag < 0.5 * bend:
             candidates = [(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)")]
         else:
+            rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
+                    f"bending bound {stable_time_step(self.groom, materials, drag, factor):.3g} s)"
+                    if kmoch and bend < stable_time_step(self.groom, materials, 0.0, factor) else "")
             candidates = [(with_drag, "the material's bending stiffness (youngs_modulus, radius) over the "
-                                      "shortest segment and the sharpest rest turn of the groom")]
+                                      "shortest segment and the sharpest rest turn of the groom" + rule)]
         air = _max_air_speed(wind)
         candidates.append((wind_bound(self.groom, air, factor),
                            f"the wind (fastest air {air:.3g} m/s must not move a node a segment per step)"))
