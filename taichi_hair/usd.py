@@ -454,6 +454,14 @@ class UsdCurvesWriter:
         os.replace(tmp, self.path)
 
 
+def _ndim(x) -> int:
+    """Dimensions of x as an array; 0 for a ragged list (a frame of strands of unequal lengths)."""
+    try:
+        return np.asarray(x).ndim
+    except ValueError:
+        return 0
+
+
 def write_usd_curves(path, frames, times=None, *, fps=24, widths=1.5e-4, colours=(0.28, 0.17, 0.09),
                      name="Strands", head_mesh=None, head_poses=None):
     """Write animated strands as /Hair/<name> (linear BasisCurves) to a USD file.
@@ -465,7 +473,7 @@ def write_usd_curves(path, frames, times=None, *, fps=24, widths=1.5e-4, colours
     widths [m]: scalar, [S] or per node; colours: [3] or [S, 3]. head_mesh (V, F) and
     head_poses [F] of (R, t): the head as /Head/Mesh with an animated transform."""
     if isinstance(frames, np.ndarray) and frames.ndim == 3 or (
-            isinstance(frames, (list, tuple)) and frames and np.asarray(frames[0]).ndim == 2):
+            isinstance(frames, (list, tuple)) and frames and _ndim(frames[0]) == 2):
         frames, times = [frames], ([0.0] if times is None else times)
     frames = list(frames)
     codes = (np.arange(1, len(frames) + 1, dtype=np.float64) if times is None
