@@ -334,7 +334,7 @@ class UsdCurvesWriter:
             raise ValueError(f"fps must be > 0, got {fps!r}")
         self.fps = float(fps)
         self.first = float(first_time_code)
-        self.counts = {}
+        self.counts, self._half_width = {}, {}
         layer = self.Sdf.Layer.CreateAnonymous(self.path.suffix)
         if resume is not None:
             self._reopen(layer, int(resume))
@@ -408,8 +408,7 @@ class UsdCurvesWriter:
         curves.CreateDisplayColorPrimvar(self.UsdGeom.Tokens.uniform).Set(
             self.Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(c)))
         self.counts[name] = counts
-        self._widths = getattr(self, "_widths", {})
-        self._widths[name] = w
+        self._half_width[name] = float(w.max()) / 2
 
     def write_frame(self, time_code, curves, head_pose=None, save=True):
         """Points of every curve set at `time_code`: curves {name: [S, N, 3] array or list of
@@ -427,7 +426,9 @@ class UsdCurvesWriter:
             prim = self.UsdGeom.BasisCurves(self.stage.GetPrimAtPath(f"/Hair/{name}"))
             prim.GetPointsAttr().Set(self.Vt.Vec3fArray.FromNumpy(points), code)
             lo, hi = points.min(0), points.max(0)
-            pad = float(np.max(prim.GetWidthsAttr().Get())) / 2 if len(prim.GetWidthsAttr().Get()) else 0.0
+            if name not in self._half_width:
+                self._half_width[name] = float(np.max(np.asarray(prim.GetWidthsAttr().Get(), dtype=np.float64))) / 2
+            pad = self._half_width[name]
             prim.GetExtentAttr().Set([tuple(map(float, lo - pad)), tuple(map(float, hi + pad))], code)
         head = self.stage.GetPrimAtPath("/Head")
         if head_pose is not None and head.IsValid():

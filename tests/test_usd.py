@@ -254,6 +254,23 @@ def test_cli_usd_run_killed_and_resumed_matches_an_uninterrupted_run(tmp_path):
     assert validation_errors(broken / "cantilever.usdc") == []
 
 
+def test_cli_shake_curly_12_frames_writes_a_valid_animated_file(tmp_path):
+    result = run([str(ROOT / "scenes" / "shake_curly.py"), "--out", str(tmp_path / "out"), "--frames", "12",
+                  "--width", "48", "--height", "36", "--dense", "200", "--usd"], cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    path = tmp_path / "out" / "shake_curly.usdc"
+    assert validation_errors(path) == []
+    stage = Usd.Stage.Open(str(path))
+    guides = UsdGeom.BasisCurves(stage.GetPrimAtPath("/Hair/Guides"))
+    assert len(guides.GetCurveVertexCountsAttr().Get()) == 300
+    assert guides.GetPointsAttr().GetTimeSamples() == [float(k) for k in range(1, 13)]
+    first, last = (np.asarray(guides.GetPointsAttr().Get(c)) for c in (1, 12))
+    assert first.shape == (300 * 40, 3) and np.abs(last - first).max() > 0.01  # the shake moved the hair
+    head = UsdGeom.Xformable(stage.GetPrimAtPath("/Head"))
+    assert len(head.GetTimeSamples()) == 12
+    assert not np.allclose(head.ComputeLocalToWorldTransform(1), head.ComputeLocalToWorldTransform(12))
+
+
 def bad_stage(path, points, counts, prim="/Groom"):
     stage = Usd.Stage.CreateNew(str(path))
     if points is not None:
