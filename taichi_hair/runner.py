@@ -171,6 +171,8 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     the checkpoint. Returns the summary dict."""
     from .runtime import init
     from .simulator import Simulator
+    if usd is not None:
+        _check_usd(usd)
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
     scene = _call_script(script, module, "build", Scene)
@@ -209,16 +211,21 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     return summary
 
 
+def _check_usd(kind):
+    """ValueError (a one-line CLI error) for a bad --usd format or a missing usd-core."""
+    from .usd import _pxr
+    if kind not in ("usdc", "usda"):
+        raise ValueError(f"--usd must be usdc or usda, got {kind!r}")
+    try:
+        _pxr()
+    except ImportError as exc:
+        raise ValueError(f"--usd: {exc}") from None
+
+
 def _usd_writer(path, shot, scene, resume, done):
     """The run's UsdCurvesWriter: time code k + 1 is frame k (simulated time (k + 1) / fps); on
     --resume the file is reopened and keeps the frames the checkpoint counts."""
-    if path.suffix not in (".usdc", ".usda"):
-        raise ValueError(f"--usd must be usdc or usda, got {path.suffix[1:]!r}")
     from . import usd
-    try:
-        usd._pxr()
-    except ImportError as exc:
-        raise ValueError(f"--usd: {exc}") from None
     mesh = scene.head.mesh if scene.head is not None else None
     if resume and (done > 0 or path.exists()):
         return usd.UsdCurvesWriter(path, shot.fps, resume=done)

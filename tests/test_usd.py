@@ -310,10 +310,15 @@ def test_bad_input_names_file_and_prim(tmp_path):
         th.read_usd_curves(tmp_path / "junk.usdc")
 
 
-def test_pxr_is_optional(monkeypatch):
+def test_pxr_is_optional(monkeypatch, tmp_path):
     code = "import sys, taichi_hair; print('pxr' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "False"  # the core never imports pxr
+    code = ("import sys; sys.modules['pxr'] = None; from taichi_hair.cli import main; "
+            f"sys.exit(main(['run', {str(ROOT / 'scenes' / 'cantilever.py')!r}, '--out', 'x', '--usd']))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert out.returncode == 2 and "taichi-hair: error: --usd: USD support needs" in out.stderr
+    assert "pip install 'taichi_hair[usd]'" in out.stderr
     monkeypatch.setitem(sys.modules, "pxr", None)
     with pytest.raises(ImportError, match=r"pip install 'taichi_hair\[usd\]'"):
         th.read_usd_curves("anything.usdc")
