@@ -54,6 +54,7 @@ from .sagfree import SagFreeReport, sag_free
 from .scene import Head, Scene
 from .simulator import Simulator
 from .stability import SimulationDiverged
+from .usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
 
 __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
@@ -61,4 +62,5 @@ __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scen
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",
            "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
            "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",
-           "pick_guides", "animate_style", "sag_free", "SagFreeReport"]
+           "pick_guides", "animate_style", "sag_free", "SagFreeReport", "read_usd_curves",
+           "write_usd_curves", "UsdCurvesWriter", "UsdCurves"]

@@ -29,7 +29,8 @@ class Shot:
     frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up)
     orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
-    and fibre width [m], supersampling, and the PNG/MP4 names."""
+    and fibre width [m], supersampling, and what `--usd` writes: "guides" (the simulated
+    strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both"."""
 
     frames: int = 72
     fps: int = 24
@@ -44,12 +45,15 @@ class Shot:
     hair_colour: tuple = (0.28, 0.17, 0.09)
     hair_width: float = 1.5e-4
     supersample: int = 1
+    usd: str = "guides"
 
     def __post_init__(self):
         for name in ("frames", "fps", "width", "height", "supersample"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.usd not in ("guides", "dense", "both"):
+            raise ValueError(f"usd must be 'guides', 'dense' or 'both', got {self.usd!r}")
         if not (isinstance(self.dense_strands, int) and self.dense_strands >= 0):
             raise ValueError(f"dense_strands must be an integer >= 0, got {self.dense_strands!r}")
         _scalar("dt", self.dt, "s", inclusive=False)
@@ -159,11 +163,16 @@ class FrameWriter:
         self.render.write_png(path, image)
 
 
-def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None) -> dict:
+def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
+              usd=None) -> dict:
     """Simulate, interpolate and render `script` into out_dir: frames/frame_NNNNN.png, the MP4,
-    state.npz (after every frame) and progress.json. Returns the summary dict."""
+    state.npz (after every frame) and progress.json; with usd="usdc" or "usda" also
+    <scene>.usdc / .usda, animated curves (Shot.usd says which), saved after every frame before
+    the checkpoint. Returns the summary dict."""
     from .runtime import init
     from .simulator import Simulator
+    if usd is not None:
+        _check_usd(usd)
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
     scene = _call_script(script, module, "build", Scene)
@@ -183,17 +192,58 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
               else scalp_interpolator(scene, sim, shot.dense_strands))
     writer = FrameWriter(shot, scene)
     done = _resume_point(out, sim, shot) if resume else 0
+    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, scene, resume, done) if usd else None
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
         bar.update(done)
         for frame in range(done, total):
-            _render_one(out, frame, shot, sim, interp, writer, times)
+            guides, hair, pose = _render_one(out, frame, shot, sim, interp, writer, times)
+            if usd_writer is not None:
+                _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose)
             _checkpoint(out, sim, shot, frame + 1)
             bar.update(1)
     video = writer.render.write_mp4(out / f"{Path(script).stem}.mp4",
                                     (writer.render.read_png(out / "frames" / f"frame_{k:05d}.png")
                                      for k in range(total)), fps=shot.fps)
-    return _summary(script, total, done, times, video, sim)
+    summary = _summary(script, total, done, times, video, sim)
+    if usd_writer is not None:
+        summary["usd"] = str(usd_writer.path)
+    return summary
+
+
+def _check_usd(kind):
+    """ValueError (a one-line CLI error) for a bad --usd format or a missing usd-core."""
+    from .usd import _pxr
+    if kind not in ("usdc", "usda"):
+        raise ValueError(f"--usd must be usdc or usda, got {kind!r}")
+    try:
+        _pxr()
+    except ImportError as exc:
+        raise ValueError(f"--usd: {exc}") from None
+
+
+def _usd_writer(path, shot, scene, resume, done):
+    """The run's UsdCurvesWriter: time code k + 1 is frame k (simulated time (k + 1) / fps); on
+    --resume the file is reopened and keeps the frames the checkpoint counts."""
+    from . import usd
+    mesh = scene.head.mesh if scene.head is not None else None
+    if resume and (done > 0 or path.exists()):
+        return usd.UsdCurvesWriter(path, shot.fps, resume=done)
+    return usd.UsdCurvesWriter(path, shot.fps, head_mesh=mesh)
+
+
+def _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose):
+    counts = sim.groom.node_counts
+    sets = {}
+    if shot.usd in ("guides", "both"):
+        sets["Guides"] = [guides[s, : counts[s]] for s in range(sim.n_strands)]
+    if shot.usd in ("dense", "both"):
+        sets["Dense"] = hair
+    for name in sets:
+        if name not in usd_writer.counts:
+            usd_writer.define(name, [len(x) for x in sets[name]], widths=shot.hair_width,
+                              colours=shot.hair_colour)
+    usd_writer.write_frame(frame + 1, sets, head_pose=pose)
 
 
 def _checkpoint(out, sim, shot, frames_done):
@@ -253,6 +303,7 @@ def _render_one(out, frame, shot, sim, interp, writer, times):
     start = time.perf_counter()
     writer.write(out / "frames" / f"frame_{frame:05d}.png", frame, hair, (rotation, translation))
     times["rendering"].append(time.perf_counter() - start)
+    return guides, hair, (rotation, translation)
 
 
 def _summary(script, total, resumed_from, times, video, sim) -> dict:
@@ -263,8 +314,9 @@ def _summary(script, total, resumed_from, times, video, sim) -> dict:
 
 def format_summary(summary: dict) -> str:
     ms = summary["ms_per_frame"]
+    usd = f" + {summary['usd']}" if summary.get("usd") else ""
     return (f"{summary['scene']}: {summary['frames']} frames (resumed from {summary['resumed_from']}), "
-            f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}\n"
+            f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}{usd}\n"
             f"median ms per frame: simulation {ms['simulation']:.1f}, interpolation "
             f"{ms['interpolation']:.1f}, rendering {ms['rendering']:.1f}")
 
@@ -278,6 +330,8 @@ def add_parser(sub):
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--height", type=int, default=None)
     p.add_argument("--dense", type=int, default=None, help="dense strands (0: draw the guides)")
+    p.add_argument("--usd", nargs="?", const="usdc", default=None, choices=["usdc", "usda"],
+                   help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
 
@@ -286,6 +340,6 @@ def main(args) -> int:
     overrides = {k: v for k, v in (("width", args.width), ("height", args.height),
                                    ("dense_strands", args.dense)) if v is not None}
     summary = run_scene(args.scene, args.out, frames=args.frames, resume=args.resume,
-                        progress=not args.no_progress, overrides=overrides)
+                        progress=not args.no_progress, overrides=overrides, usd=args.usd)
     print(format_summary(summary))
     return 0

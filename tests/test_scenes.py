@@ -24,6 +24,8 @@ def run(args, cwd, **kwargs):
 
 @pytest.mark.parametrize("scene", SCENES)
 def test_scene_runs_a_few_frames(scene, tmp_path):
+    if scene == "usd_groom.py":
+        pytest.importorskip("pxr", reason="usd-core is not installed: pip install 'taichi_hair[usd]'")
     out = tmp_path / "out"
     result = run([str(ROOT / "scenes" / scene), "--out", str(out), "--frames", "2", "--width", "96",
                   "--height", "72", "--dense", "300"], cwd=tmp_path)
