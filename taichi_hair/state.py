@@ -24,7 +24,7 @@ class RodModel:
     two rest edges; the two end nodes: half their edge, which is also the clamped root node's
     share of the strand); inv_mass [S, N] 1/kg (0 on the root node, which rides on the head);
     clamp: the root is clamped (node 0 bends and twists against the head-carried root frame)
-    rather than pinned; stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
+    (False: a hinge or a rigid first edge); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
     rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
     rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
     the root edge's two nodes [m], its unit tangent and its reference u (the root edge's rest
@@ -168,7 +168,8 @@ def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarra
 
 def build(groom: Groom, material, clamp: bool = True) -> tuple[RodModel, RodState]:
     """Model and state for `groom` with `material` (one Material or one per strand), the state
-    at the rest shape with rest material frames; clamp: the roots are clamped (else pinned).
+    at the rest shape with rest material frames; clamp: node 0 bends against the root frame
+    (root="clamped"; False for a hinge or a rigid first edge).
     Rest curvatures and twists are measured on the rest shape with the same kernels the
     simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
