@@ -291,7 +291,8 @@ def _settle_until_still(sim):
     tip, motion = sim.positions()[0, -1], math.inf
     while motion > CURL_SETTLED and sim.time < CURL_MAX_TIME:
         sim.run(0.1, progress=False)
-        motion, tip = float(np.linalg.norm(sim.positions()[0, -1] - tip)), sim.positions()[0, -1]
+        previous, tip = tip, sim.positions()[0, -1]
+        motion = float(np.linalg.norm(tip - previous))
     return motion
 
 

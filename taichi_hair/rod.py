@@ -142,6 +142,16 @@ def theta_gradient(clamp: ti.template(), node_count: Ints1, kb: Vec3s2, m1: Vec3
 
 
 @ti.func
+def node_edges(s, i, x: ti.template(), root_t: ti.template()):
+    """The two edge vectors at node i [m]; at node 0 the first is the clamp's direction (kb and
+    psi are scale-free in each edge, so a unit vector serves)."""
+    e0 = root_t[s]
+    if i >= 1:
+        e0 = x[s, i] - x[s, i - 1]
+    return e0, x[s, i + 1] - x[s, i]
+
+
+@ti.func
 def add_node_gradient(s, i, d_prev, d_next, grad: ti.template()):
     """grad[x_{i-1}] += d_prev, grad[x_{i+1}] += d_next, grad[x_i] -= both (a function of the two
     edges at node i); at node 0 the previous edge is the clamp, which does not move."""
@@ -190,10 +200,7 @@ def strand_elastic_forces(s, clamp: ti.template(), x: ti.template(), node_count:
         _, dth_next, _, g_next = node_bend_terms(s, i, i, kb, m1, m2, root_t, root_u, rest_kappa,
                                                  voronoi, k)
         suffix += dth_next  # now the sum over edges j >= i is complete
-        e0 = root_t[s]  # the clamp's direction (kb and psi are scale-free in each edge)
-        if i >= 1:
-            e0 = x[s, i] - x[s, i - 1]
-        e1 = x[s, i + 1] - x[s, i]
+        e0, e1 = node_edges(s, i, x, root_t)
         add_kb_gradient(s, i, e0, e1, kbi, g_prev + g_next, force)
         add_holonomy_gradient(s, i, e0, e1, kbi, suffix, force)
         suffix += dth_prev  # the clamp's angle (i = 0) is not a variable: its term is never used

@@ -27,8 +27,9 @@ from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
 from .validation import is_integer, is_real
-from .step import (FAILED_ABOVE, STALL_BELOW, StepPlan, advance, kmoch_step, place_roots, project_constraints,
-                   run_twist_update, strand_mechanical_energy, total_elastic_forces)
+from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
+                   place_roots, project_constraints, run_twist_update, strand_mechanical_energy,
+                   total_elastic_forces)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
@@ -185,12 +186,12 @@ class Simulator:
         materials, kmoch = self.model.materials, self.twist == "kmoch"
         bend = stable_time_step(self.groom, materials, 0.0, factor, kmoch=kmoch)
         with_drag = stable_time_step(self.groom, materials, drag, factor, kmoch=kmoch)
+        plain = stable_time_step(self.groom, materials, drag, factor) if kmoch else with_drag
         if with_drag < 0.5 * bend:
             candidates = [(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)")]
         else:
             rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
-                    f"bending bound {stable_time_step(self.groom, materials, drag, factor):.3g} s)"
-                    if kmoch and bend < stable_time_step(self.groom, materials, 0.0, factor) else "")
+                    f"bending bound {plain:.3g} s)" if with_drag < plain else "")
             candidates = [(with_drag, "the material's bending stiffness (youngs_modulus, radius) over the "
                                       "shortest segment and the sharpest rest turn of the groom" + rule)]
         air = _max_air_speed(wind)
@@ -409,10 +410,12 @@ class Simulator:
         self.update_frames()
         residual = float(self.state.residuals.to_numpy()[first, 0])
         cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual)
-        twist_failed = counters[first, COUNTERS["twist_cap_hits"]] + counters[first, COUNTERS["twist_stalls"]]
-        if twist_failed:
+        twist_residual = float(self.state.residuals.to_numpy()[first, 1])
+        # the kernel's rule (step.strand_twist): a cap, or a stall above TWIST_FAILED_ABOVE
+        if counters[first, COUNTERS["twist_cap_hits"]] or (
+                counters[first, COUNTERS["twist_stalls"]] and twist_residual > TWIST_FAILED_ABOVE):
             cause = (f"the twist solve of strand {first} did not converge (scaled residual "
-                     f"{self.state.residuals.to_numpy()[first, 1]:.3g} after {self.twist_iterations} "
+                     f"{twist_residual:.3g} after up to {self.twist_iterations} "
                      f"iterations): its forces would not be the energy's gradient; raise "
                      f"twist_iterations or twist_tol")
         raise SimulationDiverged(

@@ -27,7 +27,8 @@ import taichi as ti
 from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2
 from .frames import material_directors
 from .linalg import back_substitute
-from .rod import add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_twist, twist_terms
+from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
+                  twist_terms)
 from .runtime import precision
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
@@ -320,15 +321,6 @@ def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: t
                         q = vec2(z.x * total.x + z.y * total.y, z.y * total.x - z.x * total.y) / norm_sq
                         a0, a1 = node_edges(s, i, x, root_t)
                         add_kb_gradient(s, i, a0, a1, kb[s, i], -g * (q.x * v + q.y * u), force)
-
-
-@ti.func
-def node_edges(s, i, x: ti.template(), root_t: ti.template()):
-    """The two edge vectors at node i [m]; at node 0 the first is the clamp's direction."""
-    e0 = root_t[s]
-    if i >= 1:
-        e0 = x[s, i] - x[s, i - 1]
-    return e0, x[s, i + 1] - x[s, i]
 
 
 @ti.kernel

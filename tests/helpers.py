@@ -1,4 +1,12 @@
-"""Independent numpy references shared by tests (no taichi_hair imports of physics)."""
+"""Independent numpy references shared by tests (no taichi_hair imports of physics), and the
+command-line drivers the scene tests share."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 
@@ -30,3 +38,29 @@ def perturbed(x, scale, seed, keep_root=True):
     if keep_root:
         out[:, 0] = x[:, 0]
     return out
+
+
+def run_cli(args, cwd, timeout=900):
+    """`python -m taichi_hair run ARGS --no-progress` in cwd; the CompletedProcess (text)."""
+    return subprocess.run([sys.executable, "-m", "taichi_hair", "run", *args, "--no-progress"],
+                          cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def kill_run_after(args, out, cwd, frames, timeout):
+    """Start `taichi-hair run ARGS` writing to `out`, SIGKILL its process group once its
+    progress.json reports at least `frames` frames done (or after `timeout` s), and return the
+    frames it reports done then."""
+    proc = subprocess.Popen([sys.executable, "-m", "taichi_hair", "run", *args, "--no-progress"],
+                            cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    progress, deadline = out / "progress.json", time.time() + timeout
+    while time.time() < deadline:
+        try:
+            if json.loads(progress.read_text())["frames_done"] >= frames:
+                break
+        except (OSError, ValueError, KeyError):  # not written yet, or mid-replace
+            pass
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    return json.loads(progress.read_text())["frames_done"]

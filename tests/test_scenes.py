@@ -1,25 +1,16 @@
 """Scenes end to end: every scene script runs from the command line, and a run killed mid-way
 resumes from its checkpoint without losing a frame and ends where an uninterrupted run ends."""
 
-import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from helpers import kill_run_after
+from helpers import run_cli as run
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.py"))
-
-
-def run(args, cwd, **kwargs):
-    return subprocess.run([sys.executable, "-m", "taichi_hair", "run", *args, "--no-progress"],
-                          cwd=cwd, capture_output=True, text=True, timeout=900, **kwargs)
 
 
 @pytest.mark.parametrize("scene", SCENES)
@@ -48,22 +39,7 @@ def test_killed_run_resumes_and_matches_an_uninterrupted_run(tmp_path):
     assert run([scene, "--out", str(whole), *args], cwd=tmp_path).returncode == 0
 
     broken = tmp_path / "broken"
-    proc = subprocess.Popen([sys.executable, "-m", "taichi_hair", "run", scene, "--out", str(broken),
-                             *args, "--no-progress"], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    progress = broken / "progress.json"
-    deadline = time.time() + 600
-    while time.time() < deadline:
-        if progress.exists():
-            try:
-                if json.loads(progress.read_text())["frames_done"] >= 10:
-                    break
-            except (ValueError, KeyError):
-                pass
-        time.sleep(0.02)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    done = json.loads(progress.read_text())["frames_done"]
+    done = kill_run_after([scene, "--out", str(broken), *args], broken, tmp_path, 10, timeout=600)
     assert 10 <= done < 60, "the run was not killed mid-way"
     kept = {p.name: p.read_bytes() for p in (broken / "frames").glob("frame_*.png")
             if int(p.stem.split("_")[1]) < done}

@@ -3,16 +3,14 @@
 validators, pxr reading our files, the runner's --usd output surviving a kill and resume, and
 bad input refused with HairFileError naming file and prim."""
 
-import json
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import kill_run_after
+from helpers import run_cli as run
 
 pytest.importorskip("pxr", reason="usd-core is not installed: pip install 'taichi_hair[usd]'")
 from pxr import Gf, Usd, UsdGeom, UsdValidation, Vt  # noqa: E402
@@ -201,11 +199,6 @@ def test_writer_resume_drops_unconfirmed_frames_and_appends(tmp_path):
         UsdCurvesWriter(tmp_path / "nothing.usdc", 24, resume=2)
 
 
-def run(args, cwd):
-    return subprocess.run([sys.executable, "-m", "taichi_hair", "run", *args, "--no-progress"],
-                          cwd=cwd, capture_output=True, text=True, timeout=600)
-
-
 def time_samples(path):
     stage = Usd.Stage.Open(str(path))
     attr = stage.GetPrimAtPath("/Hair/Guides").GetAttribute("points")
@@ -227,20 +220,7 @@ def test_cli_usd_run_killed_and_resumed_matches_an_uninterrupted_run(tmp_path):
     assert all(v.shape == (31, 3) for v in full.values())
 
     broken = tmp_path / "broken"
-    proc = subprocess.Popen([sys.executable, "-m", "taichi_hair", "run", scene, "--out", str(broken),
-                             *args, "--no-progress"], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    progress, deadline = broken / "progress.json", time.time() + 300
-    while time.time() < deadline:
-        try:
-            if json.loads(progress.read_text())["frames_done"] >= 10:
-                break
-        except (OSError, ValueError, KeyError):
-            pass
-        time.sleep(0.01)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    done = json.loads(progress.read_text())["frames_done"]
+    done = kill_run_after([scene, "--out", str(broken), *args], broken, tmp_path, 10, timeout=300)
     assert 10 <= done < 60, "the run was not killed mid-way"
     partial = time_samples(broken / "cantilever.usdc")  # a valid file at every moment
     assert len(partial) in (done, done + 1)
