@@ -6,15 +6,16 @@ whatever arch Taichi was initialised with; if nobody initialised it, the first r
 """
 
 from .camera import Camera
+from .fibre import HairMaterial, fibre_scattering
 from .frame import RenderSettings, hair_shadow, render_buffers, render_frame
 from .geometry import Hair, Mesh
 from .runtime import init
-from .shading import HairShading, Light, Lighting, kajiya_kay
+from .shading import AmbientLight, DirectionalLight, HairShading, Light, Lighting, kajiya_kay
 from .shadows import ShadowSettings
 from .video import ProgressBar, Turntable, read_png, turntable, write_mp4, write_png
 
 __all__ = [
-    "Camera", "Hair", "HairShading", "Light", "Lighting", "Mesh", "ProgressBar",
-    "RenderSettings", "ShadowSettings", "Turntable", "hair_shadow", "init", "kajiya_kay",
+    "AmbientLight", "Camera", "DirectionalLight", "Hair", "HairMaterial", "HairShading", "Light", "Lighting", "Mesh", "ProgressBar",
+    "RenderSettings", "ShadowSettings", "Turntable", "fibre_scattering", "hair_shadow", "init", "kajiya_kay",
     "read_png", "render_buffers", "render_frame", "turntable", "write_mp4", "write_png",
 ]

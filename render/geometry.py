@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .fibre import HairMaterial, colour_from_sigma, sigma_from_colour
+
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] -> linear light, same shape."""
@@ -69,6 +71,10 @@ class Hair:
     widths [m] > 0: fibre (or ribbon) width; a scalar, (S,) per strand, or per vertex
         ((S, N) or a list of [N_i]). Real hair is 50-100 um wide.
     opacity in (0, 1]: alpha of a fibre covering a whole pixel.
+    material: a `HairMaterial` for the physically based fibre shading (per-strand variation
+        drawn from its seed). None: the absorption is inverted from `colours` per vertex
+        (`HairMaterial.from_colour`, beta_n = 0.3) and the other parameters are the defaults.
+        With a material, `colours` is ignored and Kajiya-Kay uses the material's colour.
 
     Derived at construction (float32 / int32, V vertices, E segments): `vertices` (V, 3),
     `vertex_colours` (V, 3) linear, `vertex_widths` (V,), `segments` (E,) index of each
@@ -80,11 +86,15 @@ class Hair:
     colours: object = (0.30, 0.18, 0.10)
     widths: object = 1e-4
     opacity: float = 1.0
+    material: HairMaterial | None = None
     vertices: np.ndarray = field(init=False, repr=False)
     vertex_colours: np.ndarray = field(init=False, repr=False)
     vertex_widths: np.ndarray = field(init=False, repr=False)
     segments: np.ndarray = field(init=False, repr=False)
     neighbours: np.ndarray = field(init=False, repr=False)
+    vertex_sigma: np.ndarray = field(init=False, repr=False)
+    vertex_beta_m: np.ndarray = field(init=False, repr=False)
+    fibre: HairMaterial = field(init=False, repr=False)
 
     def __post_init__(self):
         strands = _strands(self.points)
@@ -114,6 +124,25 @@ class Hair:
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
         set_("segments", idx[~is_last].astype(np.int32))
         set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
+        self._set_optics(counts, srgb_to_linear(colours))
+
+    def _set_optics(self, counts: np.ndarray, linear: np.ndarray) -> None:
+        set_ = lambda n, v: object.__setattr__(self, n, v)
+        m = self.material
+        if m is None:
+            fibre = HairMaterial()
+            sigma = sigma_from_colour(linear, fibre.beta_n)
+            beta_m = np.full(len(linear), fibre.beta_m)
+        elif isinstance(m, HairMaterial):
+            fibre = m
+            s_strand, b_strand = m.strands(len(counts))
+            sigma, beta_m = np.repeat(s_strand, counts, axis=0), np.repeat(b_strand, counts)
+            set_("vertex_colours", colour_from_sigma(sigma, m.beta_n).astype(np.float32))
+        else:
+            raise ValueError(f"material must be a render.HairMaterial or None, got {type(m).__name__}")
+        set_("fibre", fibre)
+        set_("vertex_sigma", np.ascontiguousarray(sigma, dtype=np.float32))
+        set_("vertex_beta_m", np.ascontiguousarray(beta_m, dtype=np.float32))
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
 
 
 def flat_settings(layers=4, shadows=False, **kw):
-    return RenderSettings(layers=layers, hair_shading=NO_SPEC,
+    return RenderSettings(layers=layers, hair_shading=NO_SPEC, hair_model="kajiya_kay",
                           shadows=ShadowSettings(enabled=shadows), **kw)
 
 
