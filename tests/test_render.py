@@ -298,3 +298,20 @@ def test_render_knows_nothing_of_physics():
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             assert not any(n.split(".")[0] == "taichi_hair" for n in names), path
+
+
+def test_contact_sheet_takes_first_middle_last(tmp_path):
+    from render.contact import contact_sheet
+    for name, n in (("a", 5), ("b", 2)):
+        frames = tmp_path / name / "frames"
+        frames.mkdir(parents=True)
+        for k in range(n):
+            render.write_png(frames / f"frame_{k:05d}.png", np.full((40, 60, 3), 50 * k, np.uint8))
+    (tmp_path / "empty").mkdir()
+    r = contact_sheet([tmp_path / "a", tmp_path / "empty", tmp_path / "b"], tmp_path / "sheet.png",
+                      thumb=30)
+    assert r["rows"] == ["a", "b"] and r["skipped"] == [str(tmp_path / "empty")]
+    sheet = render.read_png(r["path"])
+    assert sheet.shape[0] == 2 * (22 + 20)
+    # row a: frames 0, 2, 4 -> greys 0, 100, 200 below the label
+    assert [int(sheet[30, 2 + 34 * j, 0]) for j in range(3)] == [0, 100, 200]

@@ -1,0 +1,77 @@
+"""A contact sheet for review: the first, middle and last frame of every run, one row each.
+
+    python -m render.contact out/* --out out/contact_sheet.png [--thumb 320]
+
+Each argument is a run's output folder (holding frames/frame_NNNNN.png, as `taichi-hair run`
+writes, or frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are
+skipped with a note. Rows are labelled with the folder's name and the frame numbers.
+"""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from .plot import draw_text
+from .video import read_png, write_png
+
+LABEL_H = 22
+
+
+def _frames(folder: Path) -> list[Path]:
+    for d in (folder / "frames", folder):
+        found = sorted(d.glob("frame_*.png"))
+        if found:
+            return found
+    return []
+
+
+def _thumb(image: np.ndarray, width: int) -> np.ndarray:
+    """Box-filter downscale by the integer factor that brings the width to <= `width`."""
+    f = max(1, -(-image.shape[1] // width))
+    h, w = (image.shape[0] // f) * f, (image.shape[1] // f) * f
+    a = image[:h, :w].astype(np.float32).reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3))
+    return (a + 0.5).astype(np.uint8)
+
+
+def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
+    """Write the sheet as a PNG; returns {"path", "rows": [folder names], "skipped": [...]}."""
+    rows, names, skipped = [], [], []
+    for folder in map(Path, folders):
+        frames = _frames(folder)
+        if not frames:
+            skipped.append(str(folder))
+            continue
+        picks = sorted({0, len(frames) // 2, len(frames) - 1})
+        thumbs = [_thumb(read_png(frames[k]), thumb) for k in picks]
+        h = max(t.shape[0] for t in thumbs)
+        cells = [np.pad(t, ((0, h - t.shape[0]), (0, thumb - t.shape[1] + 4), (0, 0)),
+                        constant_values=255) for t in thumbs]
+        row = np.concatenate(cells, axis=1)
+        label = np.full((LABEL_H, row.shape[1], 3), 255, np.uint8)
+        draw_text(label, 4, 4, f"{folder.name}  frames {', '.join(frames[k].stem[6:] for k in picks)}")
+        rows.append(np.concatenate([label, row]))
+        names.append(folder.name)
+    if not rows:
+        raise ValueError(f"no frame_*.png found in any of {[str(f) for f in folders]}")
+    width = max(r.shape[1] for r in rows)
+    sheet = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)),
+                                   constant_values=255) for r in rows])
+    path = write_png(out_path, sheet)
+    return {"path": path, "rows": names, "skipped": skipped}
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("folders", nargs="+")
+    p.add_argument("--out", default="out/contact_sheet.png")
+    p.add_argument("--thumb", type=int, default=320)
+    args = p.parse_args(argv)
+    r = contact_sheet(args.folders, args.out, args.thumb)
+    for s in r["skipped"]:
+        print(f"skipped (no frames): {s}")
+    print(f"{r['path']}: {len(r['rows'])} rows")
+
+
+if __name__ == "__main__":
+    main()
