@@ -30,8 +30,6 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, unit, vec3f, vec4f
-
-vec2f = ti.types.vector(2, ti.f32)
 from .runtime import buffer, ensure_init, upload
 
 # absorption of the two melanins per unit concentration and fibre radius (d'Eon et al. 2011)
@@ -304,38 +302,33 @@ def sigma_coord(sigma: f32) -> f32:
 
 
 @ti.func
-def geometric(lo: f32, hi: f32, f: f32) -> f32:
-    """lo^(1 - f) hi^f: interpolation along sigma, exact for values exponential in sigma."""
-    r = lo + (hi - lo) * f
-    if lo > 1e-30 and hi > 1e-30:
-        r = ti.exp(ti.log(lo) + (ti.log(hi) - ti.log(lo)) * f)
-    return r
-
-
-@ti.func
 def n_lookup(ntab: ti.template(), p: ti.i32, ut: f32, up: f32, us: f32) -> f32:
-    """Lobe p's table at continuous indices (theta, phi, sigma): bilinear in (theta, phi),
-    geometric in sigma."""
+    """Lobe p's table of logarithms at continuous indices (theta, phi, sigma), interpolated
+    trilinearly and exponentiated: linear in log N along sigma is exact for values exponential
+    in sigma (absorption), and it follows the logistic's exponential tails in phi."""
     it = ti.min(ti.cast(ut, ti.i32), N_THETA - 2)
     ip = ti.min(ti.cast(up, ti.i32), N_PHI - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fp, fs = ut - ti.cast(it, f32), up - ti.cast(ip, f32), us - ti.cast(js, f32)
-    r = vec2f(0.0, 0.0)
-    for a, b in ti.static(ti.ndrange(2, 2)):
-        w = (ft * a + (f32(1.0) - ft) * (1 - a)) * (fp * b + (f32(1.0) - fp) * (1 - b))
-        r += w * vec2f(ntab[p, it + a, ip + b, js], ntab[p, it + a, ip + b, js + 1])
-    return geometric(r[0], r[1], fs)
+    r = f32(0.0)
+    for a, b, c in ti.static(ti.ndrange(2, 2, 2)):
+        w = ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fp * b + (f32(1.0) - fp) * (1 - b))
+             * (fs * c + (f32(1.0) - fs) * (1 - c)))
+        r += w * ntab[p, it + a, ip + b, js + c]
+    return ti.exp(r)
 
 
 @ti.func
 def a_lookup(atab: ti.template(), k: ti.i32, ut: f32, us: f32) -> f32:
-    """Row k of the attenuation table at continuous indices (theta, sigma)."""
+    """Row k of the attenuation table (logarithms) at continuous indices (theta, sigma)."""
     it = ti.min(ti.cast(ut, ti.i32), N_THETA - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fs = ut - ti.cast(it, f32), us - ti.cast(js, f32)
-    lo = (f32(1.0) - ft) * atab[k, it, js] + ft * atab[k, it + 1, js]
-    hi = (f32(1.0) - ft) * atab[k, it, js + 1] + ft * atab[k, it + 1, js + 1]
-    return geometric(lo, hi, fs)
+    r = f32(0.0)
+    for a, c in ti.static(ti.ndrange(2, 2)):
+        r += ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fs * c + (f32(1.0) - fs) * (1 - c))
+              * atab[k, it + a, js + c])
+    return ti.exp(r)
 
 
 @ti.func
@@ -396,12 +389,13 @@ _device_tables: dict = {}
 
 
 def upload_tables(material: HairMaterial) -> tuple:
-    """Device copies of the material's (N, A) tables, kept across frames (a few materials)."""
+    """Device copies of the logarithms of the material's (N, A) tables, kept across frames
+    (a few materials)."""
     key = (round(float(material.beta_n), 6), round(float(material.ior), 6))
     if key not in _device_tables:
         if len(_device_tables) >= 8:
             _device_tables.clear()
-        n_tab, a_tab = fibre_tables(*key)
+        n_tab, a_tab = (np.log(np.maximum(t, 1e-30)).astype(np.float32) for t in fibre_tables(*key))
         n_dev, a_dev = ti.ndarray(f32, n_tab.shape), ti.ndarray(f32, a_tab.shape)
         n_dev.from_numpy(n_tab)
         a_dev.from_numpy(a_tab)

@@ -17,11 +17,12 @@ import taichi as ti
 
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
-from .raster import clear_frame, composite, finish, raster_hair, raster_triangles, vec3i
+from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
 from .runtime import buffer, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_transmittance
+from .tiles import composite_hair
 
 vec2f = ti.types.vector(2, ti.f32)
 vec2i = ti.types.vector(2, ti.i32)
@@ -32,7 +33,9 @@ class RenderSettings:
     """supersample: render at s x s samples per pixel and box-filter down, s in [1, 4]; hair is
     anti-aliased by coverage already, this smooths mesh silhouettes. layers: hair fragments kept
     exactly sorted per pixel (the k-buffer's K), in [1, 16]; the rest are blended unordered
-    behind them. hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
+    behind them (compositor "kbuffer" only). compositor: "tiles" (default: depth-sorted
+    front-to-back blending per screen tile, `render.tiles`) or "kbuffer" (the K nearest
+    fragments exact, the rest an unordered tail, `raster.composite`). hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
     material) or "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows,
     hair_shading: see their classes."""
 
@@ -41,6 +44,7 @@ class RenderSettings:
     shadows: ShadowSettings = ShadowSettings()
     hair_shading: HairShading = HairShading()
     hair_model: str = "fibre"
+    compositor: str = "tiles"
 
     def __post_init__(self):
         if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
@@ -51,6 +55,8 @@ class RenderSettings:
             raise ValueError(f"shadows must be a ShadowSettings, got {type(self.shadows).__name__}")
         if not isinstance(self.hair_shading, HairShading):
             raise ValueError(f"hair_shading must be a HairShading, got {type(self.hair_shading).__name__}")
+        if self.compositor not in ("tiles", "kbuffer"):
+            raise ValueError(f"compositor must be 'tiles' or 'kbuffer', got {self.compositor!r}")
         if self.hair_model not in ("fibre", "kajiya_kay"):
             raise ValueError(f"hair_model must be 'fibre' or 'kajiya_kay', got {self.hair_model!r}")
 
@@ -157,10 +163,14 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     eye = np.asarray(camera.eye, np.float32)
 
     mesh_key = buffer("mesh_key", ti.i64, (height, width))
-    kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
-    tail = buffer("tail", vec4f, (height, width), 4)
     base = buffer("base", vec3f, (height, width), 3)
-    clear_frame(mesh_key, kbuf, tail)
+    tiled = settings.compositor == "tiles"
+    if tiled:
+        clear_keys_2d(mesh_key)
+    else:
+        kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
+        tail = buffer("tail", vec4f, (height, width), 4)
+        clear_frame(mesh_key, kbuf, tail)
 
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
@@ -184,12 +194,15 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
-    raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
-                mesh_key, kbuf, tail)
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
-    composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, base,
-              rgb_s, alpha_s)
+    if tiled:
+        composite_hair(hd, near, mesh_key, base, rgb_s, alpha_s)
+    else:
+        raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
+                    mesh_key, kbuf, tail)
+        composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, base,
+                  rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u8, (camera.height, camera.width, 3))
