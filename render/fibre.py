@@ -145,10 +145,10 @@ class HairMaterial:
         return sigma, np.clip(self.beta_m * rough, 0.05, 1.0)
 
     def shifts(self) -> np.ndarray:
-        """(sin 2a, cos 2a, sin a, cos a, sin 4a, cos 4a, 0, 0) for the lobes' tilts, float32."""
+        """(sin 2a, cos 2a, sin a, cos a, sin 4a, cos 4a, a [rad], 0) for the lobes' tilts."""
         a = math.radians(self.alpha_deg)
         return np.array([math.sin(2 * a), math.cos(2 * a), math.sin(a), math.cos(a),
-                         math.sin(4 * a), math.cos(4 * a), 0.0, 0.0], dtype=np.float32)
+                         math.sin(4 * a), math.cos(4 * a), a, 0.0], dtype=np.float32)
 
 
 # -- the model in numpy (tables and the reference for tests) ----------------------------------
@@ -238,6 +238,37 @@ def fibre_tables(beta_n: float, ior: float) -> tuple[np.ndarray, np.ndarray]:
         n_tab[p] = np.einsum("tpg,tsg->tps", d * w, a[p])
     a_tab = np.stack([(a * w).sum(axis=-1).sum(axis=0), (a[3] * w).sum(axis=-1)])
     return n_tab.astype(np.float32), a_tab.astype(np.float32)
+
+
+# dual scattering: Zinke et al. 2008's density factors
+D_FORWARD, D_BACK = 0.7, 0.7
+
+
+@lru_cache(maxsize=16)
+def dual_table(beta_n: float, ior: float) -> np.ndarray:
+    """Per absorption node (N_SIGMA), the fibre's averages for dual scattering (Zinke et al.
+    2008), (6, N_SIGMA) float32: a_f, a_b (energy scattered forward |phi| > pi/2 and backward,
+    averaged over theta with weight cos theta), k_f, k_b (their lobe-weighted longitudinal
+    variance in units of v_0) and s_f, s_b (their lobe-weighted shift in units of alpha)."""
+    n_tab, a_tab = fibre_tables(beta_n, ior)
+    n_tab, a_tab = n_tab.astype(np.float64), a_tab.astype(np.float64)
+    phi = phi_grid()
+    back = phi <= np.pi / 2
+    dphi = np.gradient(phi)
+    a_b = [2 * (n_tab[p] * (dphi * back)[None, :, None]).sum(axis=1) for p in range(3)]
+    a_f = [2 * (n_tab[p] * (dphi * ~back)[None, :, None]).sum(axis=1) for p in range(3)]
+    a_b.append(0.5 * a_tab[1])
+    a_f.append(0.5 * a_tab[1])
+    w = np.cos(theta_grid())[:, None]
+    avg = lambda x: (x * w).sum(axis=0) / w.sum()                       # over theta -> (S,)
+    k, sh = (1.0, 0.25, 4.0, 4.0), (-2.0, 1.0, 4.0, 0.0)
+    af, ab = avg(sum(a_f)), avg(sum(a_b))
+    rows = [af, ab,
+            sum(avg(a_f[p]) * k[p] for p in range(4)) / np.maximum(af, 1e-12),
+            sum(avg(a_b[p]) * k[p] for p in range(4)) / np.maximum(ab, 1e-12),
+            sum(avg(a_f[p]) * sh[p] for p in range(4)) / np.maximum(af, 1e-12),
+            sum(avg(a_b[p]) * sh[p] for p in range(4)) / np.maximum(ab, 1e-12)]
+    return np.array(rows, dtype=np.float32)
 
 
 def scattering_reference(material: HairMaterial, tangent, to_light, to_eye, n_h: int = 2048):
@@ -389,17 +420,20 @@ _device_tables: dict = {}
 
 
 def upload_tables(material: HairMaterial) -> tuple:
-    """Device copies of the logarithms of the material's (N, A) tables, kept across frames
-    (a few materials)."""
+    """Device copies of the logarithms of the material's (N, A) tables and of its dual
+    scattering table, kept across frames (a few materials)."""
     key = (round(float(material.beta_n), 6), round(float(material.ior), 6))
     if key not in _device_tables:
         if len(_device_tables) >= 8:
             _device_tables.clear()
         n_tab, a_tab = (np.log(np.maximum(t, 1e-30)).astype(np.float32) for t in fibre_tables(*key))
-        n_dev, a_dev = ti.ndarray(f32, n_tab.shape), ti.ndarray(f32, a_tab.shape)
-        n_dev.from_numpy(n_tab)
-        a_dev.from_numpy(a_tab)
-        _device_tables[key] = (n_dev, a_dev)
+        d_tab = dual_table(*key)
+        devices = []
+        for t in (n_tab, a_tab, d_tab):
+            dev = ti.ndarray(f32, t.shape)
+            dev.from_numpy(t)
+            devices.append(dev)
+        _device_tables[key] = tuple(devices)
     return _device_tables[key]
 
 
@@ -416,7 +450,7 @@ def fibre_scattering(material: HairMaterial, tangents, to_light, to_eye) -> dict
     n = len(t)
     out = buffer("fibre_out", vec3f, (n,), 3)
     alb = buffer("fibre_albedo", vec3f, (n,), 3)
-    ntab, atab = upload_tables(material)
+    ntab, atab, _ = upload_tables(material)
     _fibre_kernel(n, upload("fibre_t", np.ascontiguousarray(t), vec3f, 3),
                   upload("fibre_l", np.ascontiguousarray(l), vec3f, 3),
                   upload("fibre_v", np.ascontiguousarray(v), vec3f, 3),
@@ -425,25 +459,96 @@ def fibre_scattering(material: HairMaterial, tangents, to_light, to_eye) -> dict
     return {"S": out.to_numpy(), "albedo": alb.to_numpy()}
 
 
+@ti.func
+def d_lookup(dtab: ti.template(), k: ti.i32, us: f32) -> f32:
+    js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
+    fs = us - ti.cast(js, f32)
+    return dtab[k, js] * (f32(1.0) - fs) + dtab[k, js + 1] * fs
+
+
+@ti.func
+def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: vec3f,
+                    albedo: vec3f, terms: vec3f, alpha: f32, dtab: ti.template()) -> vec3f:
+    """Zinke et al. 2008's dual scattering for one directional light, per unit irradiance:
+    F = D (S + d_b f_back) + max(T_f - D, 0) d_f (S_G + d_b f_back^G), with n = terms[0]
+    fibres between the vertex and the light (deep opacity map), D = exp(-n) vis the direct
+    fraction, T_f = d_f a_f^n vis the forward-scattered transmittance, sigma_f^2 = n beta_f^2
+    its longitudinal spread; f_back the backscatter of the hair behind the vertex (weight
+    1 - exp(-terms[2])) as a d'Eon lobe of energy A_b shifted by Delta_b, spread cos(phi) / 2
+    over the backward half in azimuth; S_G the light arriving spread out, a broadened lobe
+    carrying the fibre's albedo isotropically in azimuth. Each term integrates over incident
+    directions to its energy (A_b, the albedo)."""
+    n, vis = terms[0], terms[1]
+    sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
+    sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
+    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
+    theta_o = ti.asin(sin_o)
+    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
+    v0 = ti.max(v0 * v0, f32(1e-4))
+    direct = ti.exp(-n) * vis
+    back_w = f32(1.0) - ti.exp(-terms[2])
+    lp, vp = l - sin_i * t, v - sin_o * t
+    den_phi = ti.sqrt(lp.dot(lp) * vp.dot(vp))
+    cphi = f32(1.0)
+    if den_phi > 1e-12:
+        cphi = ti.math.clamp(lp.dot(vp) / den_phi, f32(-1.0), f32(1.0))
+    n_back = f32(0.5) * ti.max(cphi, f32(0.0))   # azimuth of backscatter: cos(phi) / 2, back half
+    out = vec3f(0.0, 0.0, 0.0)
+    for c in ti.static(range(3)):
+        us = sigma_coord(sigma[c])
+        af, ab = d_lookup(dtab, 0, us), d_lookup(dtab, 1, us)
+        bf2, bb2 = d_lookup(dtab, 2, us) * v0, d_lookup(dtab, 3, us) * v0
+        alpha_f, alpha_b = d_lookup(dtab, 4, us) * alpha, d_lookup(dtab, 5, us) * alpha
+        af2, ab2 = af * af, ab * ab
+        den = ti.max(f32(1.0) - af2, f32(1e-3))
+        a_back = ab * af2 / den + ab * ab2 * af2 / (den * den * den)
+        shift = (alpha_b * (f32(1.0) - f32(2.0) * ab2 / (den * den))
+                 + alpha_f * (f32(2.0) * den * den + f32(4.0) * af2 * ab2) / (den * den * den))
+        sd_b = ((f32(1.0) + f32(D_BACK) * af2)
+                * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
+                / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
+        var_f = n * bf2
+        theta_b = theta_o + shift
+        sb, cb = ti.sin(theta_b), ti.abs(ti.cos(theta_b))
+        inv_2pi = f32(0.5 / math.pi)
+        f_back = m_lobe(sin_i, cos_i, sb, cb, ti.max(sd_b * sd_b, f32(1e-4))) * a_back * n_back
+        f_back_g = m_lobe(sin_i, cos_i, sb, cb, ti.max(sd_b * sd_b + var_f, f32(1e-4))) * a_back * n_back
+        s_g = m_lobe(sin_i, cos_i, sin_o, ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0))),
+                     f32(4.0) * v0 + var_f) * albedo[c] * inv_2pi
+        t_f = f32(D_FORWARD) * ti.exp(n * ti.log(ti.max(af, f32(1e-6)))) * vis
+        out[c] = (direct * (s[c] + f32(D_BACK) * back_w * f_back)
+                  + ti.max(t_f - direct, f32(0.0)) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g))
+    return out
+
+
 @ti.kernel
 def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
                          sigma: ti.types.ndarray(dtype=vec3f, ndim=1),
                          beta_m: ti.types.ndarray(dtype=f32, ndim=1),
-                         shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
+                         terms: ti.types.ndarray(dtype=vec3f, ndim=1), opacity: f32,
                          eye: vec3f, to_light: vec3f, irradiance: vec3f, ambient: vec3f,
-                         first: ti.i32, shifts: ti.types.vector(8, ti.f32),
+                         first: ti.i32, dual: ti.i32, density: f32,
+                         shifts: ti.types.vector(8, ti.f32),
                          ntab: ti.types.ndarray(dtype=f32, ndim=4),
                          atab: ti.types.ndarray(dtype=f32, ndim=3),
+                         dtab: ti.types.ndarray(dtype=f32, ndim=2),
                          rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
     """rgba[i] (+)= (linear radiance of vertex i under one directional light of `irradiance`
-    [W/m^2] attenuated by shadow[i], plus, when `first`, the uniform `ambient` radiance; opacity).
-    Tangent from the strand neighbours (root to tip). Shapes (V,). One thread per vertex."""
+    [W/m^2], plus, when `first`, the uniform `ambient` radiance; opacity). terms[i]: the
+    vertex's (hair opacity towards the light, mesh visibility, hair opacity behind it) from
+    `shadows.shadow_terms`. dual: Zinke's dual scattering (`dual_scattering`); otherwise single
+    scattering shadowed by exp(-density x opacity) x visibility. Tangent from the strand
+    neighbours (root to tip). Shapes (V,). One thread per vertex."""
     for i in range(n):
         t = unit(x[nbr[i][1]] - x[nbr[i][0]])
         v = unit(eye - x[i])
         s, albedo = fibre_terms(t, to_light, v, sigma[i], beta_m[i], shifts, ntab, atab)
-        c = irradiance * s * shadow[i]
+        tm = terms[i]
+        f = s * (ti.exp(-density * tm[0]) * tm[1])
+        if dual:
+            f = dual_scattering(t, to_light, v, sigma[i], beta_m[i], s, albedo, tm, shifts[6], dtab)
+        c = irradiance * f
         if first:
             c += ambient * albedo
             rgba[i] = vec4f(c[0], c[1], c[2], opacity)

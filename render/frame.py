@@ -21,7 +21,7 @@ from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, 
 from .runtime import buffer, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
-from .shadows import ShadowSettings, build_shadow_map, points_transmittance
+from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
 from .tiles import composite_hair
 
 vec2f = ti.types.vector(2, ti.f32)
@@ -35,7 +35,9 @@ class RenderSettings:
     exactly sorted per pixel (the k-buffer's K), in [1, 16]; the rest are blended unordered
     behind them (compositor "kbuffer" only). compositor: "tiles" (default: depth-sorted
     front-to-back blending per screen tile, `render.tiles`) or "kbuffer" (the K nearest
-    fragments exact, the rest an unordered tail, `raster.composite`). hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
+    fragments exact, the rest an unordered tail, `raster.composite`). multiple_scattering:
+    dual scattering through the hair (fibre model; False: single scattering with shadows, as a
+    path tracer with max_depth 2). hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
     material) or "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows,
     hair_shading: see their classes."""
 
@@ -45,6 +47,7 @@ class RenderSettings:
     hair_shading: HairShading = HairShading()
     hair_model: str = "fibre"
     compositor: str = "tiles"
+    multiple_scattering: bool = True
 
     def __post_init__(self):
         if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
@@ -85,6 +88,7 @@ def _upload_hair(hair: Hair | None) -> dict:
                 width_px=buffer("hair_width_px", f32, (nv,)),
                 screen=buffer("hair_screen", vec4f, (nv,), 4),
                 shadow=buffer("hair_shadow", f32, (nv,)),
+                terms=buffer("hair_shadow_terms", vec3f, (nv,), 3),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
                 n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
 
@@ -126,16 +130,23 @@ def _lights(lights, lighting) -> tuple[list, np.ndarray]:
     return split_lights(lights)
 
 
-def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre):
+def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre,
+                smap):
     """Shade the hair vertices for one directional light (adding to earlier lights)."""
     to_light = light.to_light
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
+    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
+                   smap.params)
     if settings.hair_model == "fibre":
-        ntab, atab = upload_tables(fibre)
+        ntab, atab, dtab = upload_tables(fibre)
+        points_shadow_terms(hd["n_vertices"], hd["x"], *shadow_args, hd["terms"])
         shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             hd["shadow"], hd["opacity"], eye, to_light, irradiance, ambient,
-                             int(first), fibre.shifts(), ntab, atab, hd["rgba"])
+                             hd["terms"], hd["opacity"], eye, to_light, irradiance, ambient,
+                             int(first), int(settings.multiple_scattering),
+                             np.float32(settings.shadows.density), fibre.shifts(), ntab, atab,
+                             dtab, hd["rgba"])
     else:
+        points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
         shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
                             hd["opacity"], eye, to_light, irradiance / np.float32(np.pi), ambient,
                             int(first), settings.hair_shading.packed(), hd["rgba"])
@@ -187,9 +198,8 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
         shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
                    md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
                    bg, *shadow_args, int(k == 0), base)
-        points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
         _shade_hair(hd, eye, light, ambient, k == 0, settings,
-                    hair.fibre if hair is not None else None)
+                    hair.fibre if hair is not None else None, smap)
 
     # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],

@@ -149,7 +149,7 @@ def render_ours(scene: Scene, material: HairMaterial, supersample: int = 2) -> d
     from .frame import RenderSettings, ShadowSettings, render_buffers
     hair = Hair(points=scene.points, widths=scene.width, material=material)
     meshes = [] if scene.sphere is None else [_sphere_mesh(*scene.sphere)]
-    settings = RenderSettings(supersample=supersample, layers=8,
+    settings = RenderSettings(supersample=supersample, layers=8, multiple_scattering=False,
                               shadows=ShadowSettings(resolution=1024))
     return render_buffers(scene.camera, hair=hair, meshes=meshes, lights=list(scene.lights),
                           background=(0.0, 0.0, 0.0), settings=settings)

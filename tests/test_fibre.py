@@ -138,3 +138,23 @@ def test_images_match_mitsuba():
             assert abs(r["r_ours"] - r["r_mitsuba"]) < 2.0, r
             assert abs(r["trt_ours"] - r["trt_mitsuba"]) < 2.0, r
             assert r["trt_ours"] - r["r_ours"] > 5.0, r  # two distinct highlights (3 alpha apart)
+
+
+def test_dual_scattering_lights_hair_behind_hair():
+    """Two sheets of fibres, the back one behind the front one as seen from the light: with
+    dual scattering light hair passes light on (forward scattering) to the back sheet, which
+    single scattering leaves in shadow; dark hair passes almost nothing on either way."""
+    x = np.linspace(-0.05, 0.05, 120)
+    sheet = lambda z: [np.linspace((xi, -0.1, z), (xi, 0.1, z), 9) for xi in x]
+    cam = render.Camera(eye=(1.0, 0.0, 0.0), target=(0, 0, 0), fov_y=20.0, width=64, height=48)
+    z_px = cam.project([(0.0, 0.0, 0.02), (0.0, 0.0, -0.02)])[:, 0].astype(int)
+    lights = [render.DirectionalLight((0.0, 0.0, -1.0), (5.0, 5.0, 5.0))]
+    back = {}
+    for name, mat in (("blonde", HairMaterial(eumelanin=0.1)), ("black", HairMaterial(eumelanin=8.0))):
+        hair = render.Hair(points=sheet(0.02) + sheet(-0.02), widths=1e-3, material=mat)
+        for ms in (False, True):
+            rgb = render.render_buffers(cam, hair=hair, lights=lights, background=(0, 0, 0),
+                                        settings=render.RenderSettings(multiple_scattering=ms))["rgb"]
+            back[name, ms] = rgb[16:32, z_px[1] - 1:z_px[1] + 2].sum(axis=-1).mean()
+    assert back["blonde", True] > 1.5 * back["blonde", False]
+    assert back["black", True] < 1.2 * back["black", False] + 1e-4
