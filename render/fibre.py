@@ -467,6 +467,14 @@ def d_lookup(dtab: ti.template(), k: ti.i32, us: f32) -> f32:
 
 
 @ti.func
+def gauss_lobe(theta_i: f32, theta_o: f32, var: f32) -> f32:
+    """Gaussian stand-in for a broad d'Eon lobe of variance var: peak at theta_i = -theta_o,
+    unit integral over theta_i (cheaper than `m_lobe`; used for dual scattering's lobes)."""
+    d = theta_i + theta_o
+    return ti.exp(-d * d / (f32(2.0) * var)) * ti.rsqrt(f32(2.0 * math.pi) * var)
+
+
+@ti.func
 def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: vec3f,
                     albedo: vec3f, terms: vec3f, alpha: f32, dtab: ti.template()) -> vec3f:
     """Zinke et al. 2008's dual scattering for one directional light, per unit irradiance:
@@ -474,15 +482,14 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     fibres between the vertex and the light (deep opacity map), D = exp(-n) vis the direct
     fraction, T_f = d_f a_f^n vis the forward-scattered transmittance, sigma_f^2 = n beta_f^2
     its longitudinal spread; f_back the backscatter of the hair behind the vertex (weight
-    1 - exp(-terms[2])) as a d'Eon lobe of energy A_b shifted by Delta_b, spread cos(phi) / 2
+    1 - exp(-terms[2])) as a (Gaussian) longitudinal lobe of energy A_b shifted by Delta_b, spread cos(phi) / 2
     over the backward half in azimuth; S_G the light arriving spread out, a broadened lobe
     carrying the fibre's albedo isotropically in azimuth. Each term integrates over incident
     directions to its energy (A_b, the albedo)."""
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
-    theta_o = ti.asin(sin_o)
+    theta_i, theta_o = ti.asin(sin_i), ti.asin(sin_o)
     v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
     v0 = ti.max(v0 * v0, f32(1e-4))
     direct = ti.exp(-n) * vis
@@ -508,16 +515,16 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
                 * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
                 / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
         var_f = n * bf2
-        theta_b = theta_o + shift
-        sb, cb = ti.sin(theta_b), ti.abs(ti.cos(theta_b))
-        inv_2pi = f32(0.5 / math.pi)
-        f_back = m_lobe(sin_i, cos_i, sb, cb, ti.max(sd_b * sd_b, f32(1e-4))) * a_back * n_back
-        f_back_g = m_lobe(sin_i, cos_i, sb, cb, ti.max(sd_b * sd_b + var_f, f32(1e-4))) * a_back * n_back
-        s_g = m_lobe(sin_i, cos_i, sin_o, ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0))),
-                     f32(4.0) * v0 + var_f) * albedo[c] * inv_2pi
+        var_b = ti.max(sd_b * sd_b, f32(1e-4))
+        out[c] = direct * s[c]
+        if direct * back_w > 1e-4:
+            out[c] += (direct * f32(D_BACK) * back_w * a_back * n_back
+                       * gauss_lobe(theta_i, theta_o + shift, var_b))
         t_f = f32(D_FORWARD) * ti.exp(n * ti.log(ti.max(af, f32(1e-6)))) * vis
-        out[c] = (direct * (s[c] + f32(D_BACK) * back_w * f_back)
-                  + ti.max(t_f - direct, f32(0.0)) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g))
+        if t_f - direct > 1e-4:
+            s_g = gauss_lobe(theta_i, theta_o, f32(4.0) * v0 + var_f) * albedo[c] * f32(0.5 / math.pi)
+            f_back_g = a_back * n_back * gauss_lobe(theta_i, theta_o + shift, var_b + var_f)
+            out[c] += (t_f - direct) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g)
     return out
 
 

@@ -37,7 +37,9 @@ class RenderSettings:
     front-to-back blending per screen tile, `render.tiles`) or "kbuffer" (the K nearest
     fragments exact, the rest an unordered tail, `raster.composite`). multiple_scattering:
     dual scattering through the hair (fibre model; False: single scattering with shadows, as a
-    path tracer with max_depth 2). hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
+    path tracer with max_depth 2). strand_lod in (0, 1]: level of detail for sub-pixel hair:
+    render this fraction of the strands (a fixed seeded subset), widened by 1 / strand_lod, with
+    their opacity lowered so that a pixel's expected transmittance is unchanged. hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
     material) or "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows,
     hair_shading: see their classes."""
 
@@ -48,6 +50,7 @@ class RenderSettings:
     hair_model: str = "fibre"
     compositor: str = "tiles"
     multiple_scattering: bool = True
+    strand_lod: float = 1.0
 
     def __post_init__(self):
         if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
@@ -58,6 +61,8 @@ class RenderSettings:
             raise ValueError(f"shadows must be a ShadowSettings, got {type(self.shadows).__name__}")
         if not isinstance(self.hair_shading, HairShading):
             raise ValueError(f"hair_shading must be a HairShading, got {type(self.hair_shading).__name__}")
+        if not 0.0 < self.strand_lod <= 1.0:
+            raise ValueError(f"strand_lod must be in (0, 1], got {self.strand_lod}")
         if self.compositor not in ("tiles", "kbuffer"):
             raise ValueError(f"compositor must be 'tiles' or 'kbuffer', got {self.compositor!r}")
         if self.hair_model not in ("fibre", "kajiya_kay"):
@@ -69,11 +74,15 @@ def _padded(a: np.ndarray) -> np.ndarray:
     return a if len(a) else np.zeros((1, *a.shape[1:]), dtype=a.dtype)
 
 
-def _upload_hair(hair: Hair | None) -> dict:
+def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
     if hair is None:
         x, w = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         seg, nbr, col, opacity = np.zeros(0, np.int32), np.zeros((0, 2), np.int32), x, 1.0
         sigma, beta_m = x, w
+    elif lod < 1.0:
+        d = hair.subset(lod)
+        x, w, seg, nbr = d["x"], d["widths"] / np.float32(lod), d["seg"], d["nbr"]
+        col, opacity, sigma, beta_m = d["colour"], hair.opacity, d["sigma"], d["beta_m"]
     else:
         x, w, seg, nbr = hair.vertices, hair.vertex_widths, hair.segments, hair.neighbours
         col, opacity = hair.vertex_colours, hair.opacity
@@ -105,6 +114,19 @@ def _upload_meshes(meshes) -> dict:
                 width_px=buffer("mesh_width_px", f32, (nv,)),
                 screen=buffer("mesh_screen", vec4f, (nv,), 4),
                 n_vertices=len(m["x"]), n_faces=len(m["faces"]))
+
+
+@ti.kernel
+def lod_opacity(n: ti.i32, width_px: ti.types.ndarray(dtype=f32, ndim=1), keep: f32,
+                rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+    """Strand level of detail: a kept strand of width w' = w / keep [px] stands for 1 / keep
+    strands of width w, so its pixel alpha becomes c' = 1 - (1 - c)^(1 / keep), c = min(w, 1) a:
+    the expected transmittance of a pixel is unchanged. One thread per vertex."""
+    for i in range(n):
+        w_new = width_px[i]
+        c = ti.min(w_new * keep, f32(1.0)) * rgba[i][3]
+        c_new = f32(1.0) - ti.exp(ti.log(ti.max(f32(1.0) - c, f32(1e-6))) / keep)
+        rgba[i][3] = ti.min(c_new / ti.max(ti.min(w_new, f32(1.0)), f32(1e-6)), f32(1.0))
 
 
 def _check(camera, hair, meshes, settings):
@@ -168,7 +190,7 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     meshes = list(meshes)
     s = settings.supersample
     height, width = camera.height * s, camera.width * s
-    hd, md = _upload_hair(hair), _upload_meshes(meshes)
+    hd, md = _upload_hair(hair, settings.strand_lod), _upload_meshes(meshes)
     view, proj = camera.matrices(s)
     near = np.float32(camera.near)
     eye = np.asarray(camera.eye, np.float32)
@@ -204,6 +226,8 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
+    if settings.strand_lod < 1.0:
+        lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
     if tiled:

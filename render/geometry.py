@@ -95,6 +95,7 @@ class Hair:
     vertex_sigma: np.ndarray = field(init=False, repr=False)
     vertex_beta_m: np.ndarray = field(init=False, repr=False)
     fibre: HairMaterial = field(init=False, repr=False)
+    strand_starts: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
         strands = _strands(self.points)
@@ -124,7 +125,32 @@ class Hair:
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
         set_("segments", idx[~is_last].astype(np.int32))
         set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
+        set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
         self._set_optics(counts, srgb_to_linear(colours))
+
+    def subset(self, fraction: float) -> dict:
+        """Level of detail: a fixed, seeded `fraction` of the strands (the same strands for
+        every frame of the same groom, nested as the fraction grows), as arrays shaped like the
+        derived fields: x, widths, seg, nbr, colour, sigma, beta_m. Widths are not changed."""
+        cache = self.__dict__.setdefault("_lod_cache", {})
+        if fraction in cache:
+            return cache[fraction]
+        n_strands = len(self.strand_starts) - 1
+        rank = np.random.default_rng(12345).permutation(n_strands)
+        keep = np.sort(np.nonzero(rank < max(1, round(fraction * n_strands)))[0])
+        lo, hi = self.strand_starts[keep], self.strand_starts[keep + 1]
+        counts = hi - lo
+        idx = np.repeat(lo - np.cumsum(np.concatenate([[0], counts[:-1]])), counts) + np.arange(counts.sum())
+        remap = np.full(len(self.vertices), -1, np.int64)
+        remap[idx] = np.arange(len(idx))
+        seg = remap[self.segments]
+        seg = seg[seg >= 0]
+        cache.clear()   # one level kept per groom
+        cache[fraction] = dict(x=self.vertices[idx], widths=self.vertex_widths[idx],
+                               seg=seg.astype(np.int32), nbr=remap[self.neighbours[idx]].astype(np.int32),
+                               colour=self.vertex_colours[idx], sigma=self.vertex_sigma[idx],
+                               beta_m=self.vertex_beta_m[idx])
+        return cache[fraction]
 
     def _set_optics(self, counts: np.ndarray, linear: np.ndarray) -> None:
         set_ = lambda n, v: object.__setattr__(self, n, v)

@@ -74,6 +74,22 @@ def test_tiles_blend_front_to_back_like_an_exact_sort():
     assert diff.mean() < 2e-3 and np.percentile(diff, 99) < 0.02, (diff.mean(), diff.max())
 
 
+def test_strand_lod_keeps_coverage_and_colour():
+    """Level of detail: half or a quarter of the strands, widened, against the full render
+    of sub-pixel hair: the same hair coverage and mean colour within a few per cent."""
+    from render.bench import sphere_mesh, synthetic_hair
+    hair = synthetic_hair(6000, 16, width=8e-5)
+    cam = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=160, height=120)
+    out = {f: render.render_buffers(cam, hair=hair, meshes=[sphere_mesh()],
+                                    settings=RenderSettings(strand_lod=f)) for f in (1.0, 0.5, 0.25)}
+    mask = out[1.0]["alpha"] > 0.05
+    assert 0.1 < out[1.0]["alpha"][mask].mean() < 0.95  # partly transparent: LOD matters
+    for f in (0.5, 0.25):
+        assert out[f]["alpha"][mask].mean() == pytest.approx(out[1.0]["alpha"][mask].mean(), rel=0.05)
+        np.testing.assert_allclose(out[f]["rgb"][mask].mean(axis=0), out[1.0]["rgb"][mask].mean(axis=0),
+                                   rtol=0.05)
+
+
 # -- anti-aliasing ------------------------------------------------------------------------
 
 @pytest.mark.parametrize("w", [0.3, 0.5, 1.0, 1.5, 2.0, 3.0])
@@ -293,6 +309,7 @@ def test_turntable_writes_mp4_and_resumes(tmp_path):
     (lambda: Mesh(vertices=np.zeros((3, 3)), faces=[(0, 1, 3)]), "faces"),
     (lambda: RenderSettings(layers=0), "layers"),
     (lambda: RenderSettings(compositor="abuffer"), "compositor"),
+    (lambda: RenderSettings(strand_lod=0.0), "strand_lod"),
     (lambda: ShadowSettings(resolution=8), "resolution"),
     (lambda: Turntable(frames=0), "frames"),
 ])
