@@ -2,10 +2,14 @@
 
     python -m render.bench [--strands 100000] [--segments 32] [--width 1280] [--height 720]
                            [--repeats 3] [--arch cpu]
+    python -m render.bench --table [--repeats 5]     # old vs new compositor, all sizes
 
 Times `render_frame` on whatever arch Taichi is initialised with (initialising it with
 --arch if nobody has): one warm-up frame, whose time includes kernel compilation and is
-reported apart, then the median of `repeats` frames.
+reported apart, then the median of `repeats` frames. --table prints a Markdown table of the
+median frame time for the k-buffer compositor (the older one), the tiled compositor, and the
+tiled compositor with strand_lod 0.25, at 640x480 / 1280x720 / 1920x1080 and 20k / 100k
+strands, all in the same run and with the same (fibre) shading.
 """
 
 import argparse
@@ -99,6 +103,24 @@ def bench_render(n_strands: int = 100_000, n_segments: int = 32, width: int = 12
                 frames_ms=[t * 1e3 for t in times])
 
 
+TABLE_SETTINGS = {"kbuffer (old)": RenderSettings(compositor="kbuffer"),
+                  "tiles (new)": RenderSettings(compositor="tiles"),
+                  "tiles + lod 0.25": RenderSettings(compositor="tiles", strand_lod=0.25)}
+
+
+def bench_table(strands=(20_000, 100_000), sizes=((640, 480), (1280, 720), (1920, 1080)),
+                repeats: int = 5, n_segments: int = 32) -> list[dict]:
+    """Median frame times [ms] per (strands, size) for each of TABLE_SETTINGS, same run."""
+    rows = []
+    for n in strands:
+        for w, h in sizes:
+            row = {"strands": n, "size": f"{w}x{h}"}
+            for name, settings in TABLE_SETTINGS.items():
+                row[name] = bench_render(n, n_segments, w, h, repeats, settings)["median_ms"]
+            rows.append(row)
+    return rows
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--strands", type=int, default=100_000)
@@ -107,8 +129,17 @@ def main(argv=None) -> None:
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--arch", default="cpu")
+    p.add_argument("--table", action="store_true", help="old vs new compositor at all sizes")
     args = p.parse_args(argv)
     init(args.arch)
+    if args.table:
+        names = list(TABLE_SETTINGS)
+        print("| strands x 32 | resolution | " + " | ".join(f"{k} [ms]" for k in names) + " |")
+        print("|---|---|" + "---|" * len(names))
+        for r in bench_table(repeats=args.repeats):
+            print(f"| {r['strands'] // 1000}k | {r['size']} | "
+                  + " | ".join(f"{r[k]:.0f}" for k in names) + " |", flush=True)
+        return
     r = bench_render(args.strands, args.segments, args.width, args.height, args.repeats)
     rows = [("arch", r["arch"]), ("strands x segments", f"{r['n_strands']} x {r['n_segments']}"),
             ("resolution", f"{r['width']} x {r['height']}"),

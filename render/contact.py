@@ -1,8 +1,11 @@
 """A contact sheet for review: the first, middle and last frame of every run, one row each.
 
     python -m render.contact out/* --out out/contact_sheet.png [--thumb 320]
+    python -m render.contact --run scenes/*.py --frames 24 --out out/contact_sheet.png
 
-Each argument is a run's output folder (holding frames/frame_NNNNN.png, as `taichi-hair run`
+With --run, each argument is a scene script, first run with `taichi-hair run` (as a separate
+command: render imports nothing of taichi_hair) into out/contact_runs/<scene> at the given
+--frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's output folder (holding frames/frame_NNNNN.png, as `taichi-hair run`
 writes, or frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are
 skipped with a note. Rows are labelled with the folder's name and the frame numbers.
 """
@@ -61,13 +64,42 @@ def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
     return {"path": path, "rows": names, "skipped": skipped}
 
 
+def run_scenes(scripts, runs_dir, frames: int, width: int, height: int, dense: int | None) -> list:
+    """Run each scene script with the `taichi-hair run` command; returns the output folders
+    (a scene that fails is reported and left out)."""
+    import subprocess
+    import sys
+    folders = []
+    for script in map(Path, scripts):
+        out = Path(runs_dir) / script.stem
+        cmd = [sys.executable, "-m", "taichi_hair", "run", str(script), "--out", str(out),
+               "--frames", str(frames), "--width", str(width), "--height", str(height)]
+        if dense is not None:
+            cmd += ["--dense", str(dense)]
+        print(" ".join(cmd[2:]), flush=True)
+        if subprocess.run(cmd).returncode == 0:
+            folders.append(out)
+        else:
+            print(f"failed: {script}", flush=True)
+    return folders
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("folders", nargs="+")
+    p.add_argument("folders", nargs="+", help="run folders, or scene scripts with --run")
     p.add_argument("--out", default="out/contact_sheet.png")
     p.add_argument("--thumb", type=int, default=320)
+    p.add_argument("--run", action="store_true", help="the arguments are scene scripts: run them first")
+    p.add_argument("--frames", type=int, default=24)
+    p.add_argument("--width", type=int, default=320)
+    p.add_argument("--height", type=int, default=240)
+    p.add_argument("--dense", type=int, default=None, help="dense strands (default: the scene's)")
     args = p.parse_args(argv)
-    r = contact_sheet(args.folders, args.out, args.thumb)
+    folders = args.folders
+    if args.run:
+        folders = run_scenes(folders, Path(args.out).parent / "contact_runs", args.frames,
+                             args.width, args.height, args.dense)
+    r = contact_sheet(folders, args.out, args.thumb)
     for s in r["skipped"]:
         print(f"skipped (no frames): {s}")
     print(f"{r['path']}: {len(r['rows'])} rows")

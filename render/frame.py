@@ -174,6 +174,24 @@ def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSett
                             int(first), settings.hair_shading.packed(), hd["rgba"])
 
 
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base):
+    """Per directional light: its shadow maps, the meshes' and the hair's shading, adding up
+    (the first pass also writes the ambient term and the background)."""
+    passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
+    for k, light in enumerate(passes):
+        shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
+        smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
+                                md if md["n_faces"] else None)
+        irradiance = np.asarray(light.irradiance_rgb, np.float32)
+        # Lambert: radiance = albedo / pi x irradiance x cos
+        shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
+                   md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
+                   bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
+                   smap.params, int(k == 0), base)
+        if hd["n_vertices"]:
+            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap)
+
+
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                    lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                    settings: RenderSettings = RenderSettings()) -> dict:
@@ -208,20 +226,7 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
-    passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
-    for k, light in enumerate(passes):
-        shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
-        smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
-                                md if md["n_faces"] else None)
-        shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                       smap.params)
-        irradiance = np.asarray(light.irradiance_rgb, np.float32)
-        # Lambert: radiance = albedo / pi x irradiance x cos
-        shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
-                   md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
-                   bg, *shadow_args, int(k == 0), base)
-        _shade_hair(hd, eye, light, ambient, k == 0, settings,
-                    hair.fibre if hair is not None else None, smap)
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base)
 
     # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],

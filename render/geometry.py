@@ -244,3 +244,31 @@ def merge_meshes(meshes) -> dict:
         material=cat([np.tile([m.specular, m.shininess], (len(m.faces), 1)) for m in meshes],
                      (0, 2)).astype(np.float32),
     )
+
+
+def capsule_mesh(p0, p1, radius: float, colours=(0.80, 0.62, 0.52), sectors: int = 32,
+                 rings: int = 8) -> Mesh:
+    """A capsule (the segment p0-p1 [m] swept by a sphere of `radius` [m]) as a closed
+    triangle mesh: a cylinder with hemispherical caps, `sectors` around, `rings` per cap."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    axis = p1 - p0
+    length = np.linalg.norm(axis)
+    if not (radius > 0 and length > 0):
+        raise ValueError(f"capsule needs radius > 0 m and p0 != p1, got radius {radius}")
+    w = axis / length
+    helper = np.array([1.0, 0.0, 0.0]) if abs(w[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(w, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    # latitude from -pi/2 (below p0) to +pi/2 (above p1); the cylinder joins the two equators
+    lat = np.concatenate([np.linspace(-np.pi / 2, 0, rings + 1), np.linspace(0, np.pi / 2, rings + 1)])
+    base = np.concatenate([np.zeros(rings + 1), np.full(rings + 1, length)])
+    phi = np.linspace(0.0, 2 * np.pi, sectors + 1)[None, :]
+    ring = np.cos(lat)[:, None, None] * (np.cos(phi)[..., None] * u + np.sin(phi)[..., None] * v)
+    verts = (p0 + radius * ring + (base + radius * np.sin(lat))[:, None, None] * w).reshape(-1, 3)
+    n_rows = len(lat)
+    i, j = np.meshgrid(np.arange(n_rows - 1), np.arange(sectors), indexing="ij")
+    a = (i * (sectors + 1) + j).ravel()
+    b, c, d = a + sectors + 1, a + 1, a + sectors + 2
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([c, b, d], 1)])
+    return Mesh(vertices=verts, faces=faces, colours=colours)

@@ -68,6 +68,32 @@ class AmbientLight:
         object.__setattr__(self, "radiance_rgb", tuple(_rgb("radiance_rgb", self.radiance_rgb)))
 
 
+def three_point_lights(view_direction=(0.0, 1.0, 0.25), up=(0.0, 0.0, 1.0),
+                       irradiance: float = 6.0, ambient: float = 0.12) -> list:
+    """Key, fill and rim lights for a camera looking along -view_direction (from the subject
+    towards the eye) with `up`: the key (shadowed) 45 degrees to the camera's left and 35 up,
+    the fill (half the key, unshadowed) 60 degrees to the right and level, the rim (0.8 of
+    the key, shadowed) from behind and above; plus a cool ambient of `ambient` x irradiance / pi
+    radiance. irradiance: the key's [W/m^2], warm white."""
+    d = np.asarray(view_direction, float)
+    d /= np.linalg.norm(d)
+    u = np.asarray(up, float)
+    right = np.cross(-d, u)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, -d)
+
+    def towards(az, el):   # direction to the light: az from the camera towards the right
+        a, e = np.radians(az), np.radians(el)
+        return np.cos(e) * (np.cos(a) * d + np.sin(a) * right) + np.sin(e) * true_up
+
+    warm, cool = np.array([1.0, 0.95, 0.88]), np.array([0.85, 0.9, 1.0])
+    e = float(irradiance)
+    return [DirectionalLight(tuple(-towards(-45, 35)), tuple(e * warm)),
+            DirectionalLight(tuple(-towards(60, 0)), tuple(0.5 * e * cool), shadows=False),
+            DirectionalLight(tuple(-towards(180, 40)), tuple(0.8 * e * warm)),
+            AmbientLight(tuple(ambient * e / math.pi * cool))]
+
+
 def split_lights(lights) -> tuple[list, np.ndarray]:
     """(directional lights, summed ambient radiance (3,) float32) of a list of lights."""
     if isinstance(lights, (DirectionalLight, AmbientLight)):

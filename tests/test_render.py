@@ -261,6 +261,14 @@ def test_frame_is_uint8_srgb_of_camera_size():
     assert np.all(np.abs(img.astype(int) - 128) <= 1)  # sRGB 0.5 round-trips through linear
 
 
+def test_default_settings_render_meshes_alone_and_hair_alone():
+    quad = _quad(0.0, 0.3, (0.5, 0.5, 0.5))
+    assert render.render_frame(FRONT, meshes=[quad]).mean() > 20
+    hair = Hair(points=[line((-0.2, 0.0, 0.0), (0.2, 0.0, 0.0))], widths=px_width(FRONT, 1.0, 3.0))
+    out = render.render_buffers(FRONT, hair=hair, lights=[render.DirectionalLight((0, 0, -1), (3, 3, 3))])
+    assert out["alpha"].max() > 0.99 and np.isfinite(out["rgb"]).all()
+
+
 def test_write_mp4_keeps_odd_size(tmp_path):
     frames = [np.full((25, 33, 3), 40 * k, np.uint8) for k in range(4)]
     path = render.write_mp4(tmp_path / "odd.mp4", frames, fps=10)
