@@ -357,3 +357,29 @@ def test_contact_sheet_takes_first_middle_last(tmp_path):
     assert sheet.shape[0] == 2 * (22 + 20)
     # row a: frames 0, 2, 4 -> greys 0, 100, 200 below the label
     assert [int(sheet[30, 2 + 34 * j, 0]) for j in range(3)] == [0, 100, 200]
+
+
+@pytest.mark.parametrize("direction", [(0.0, 1.0, 0.25), (0.7, -0.7, 0.2), (0.0, -1.0, 0.0)])
+def test_fit_camera_centres_and_fills(direction):
+    pts = np.random.default_rng(1).normal(size=(200, 3)) * [0.1, 0.05, 0.2] + [0.3, -0.2, 0.1]
+    cam = render.fit_camera(pts, direction=direction, width=160, height=90, margin=1.05)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    s = cam.project(box)[:, :2]
+    assert s.min() >= 0.0 and s[:, 0].max() <= 160 and s[:, 1].max() <= 90    # all in frame
+    span = s.max(axis=0) - s.min(axis=0)
+    assert max(span[0] / 160, span[1] / 90) > 0.8                             # and filling it
+    np.testing.assert_allclose(cam.project(0.5 * (lo + hi))[:2], [80, 45], atol=4)  # centred
+
+
+def test_capsule_mesh_and_three_point_lights():
+    m = render.capsule_mesh((0, 0, 0), (0, 0, -0.2), 0.05)
+    r = np.linalg.norm(m.vertices[:, :2], axis=1)
+    assert np.all(r <= 0.05 + 1e-9) and m.vertices[:, 2].min() == pytest.approx(-0.25)
+    assert m.vertices[:, 2].max() == pytest.approx(0.05)
+    lights = render.three_point_lights((0.0, 1.0, 0.2))
+    directional = [lt for lt in lights if isinstance(lt, render.DirectionalLight)]
+    assert len(directional) == 3 and any(isinstance(lt, render.AmbientLight) for lt in lights)
+    # the key lights the subject from the camera's side, the rim from behind
+    assert np.dot(directional[0].to_light, (0.0, 1.0, 0.2)) > 0.3
+    assert np.dot(directional[2].to_light, (0.0, 1.0, 0.2)) < -0.3
