@@ -5,9 +5,10 @@
 
 With --run, each argument is a scene script, first run with `taichi-hair run` (as a separate
 command: render imports nothing of taichi_hair) into out/contact_runs/<scene> at the given
---frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's output folder (holding frames/frame_NNNNN.png, as `taichi-hair run`
-writes, or frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are
-skipped with a note. Rows are labelled with the folder's name and the frame numbers.
+--frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's
+output folder (holding frames/frame_NNNNN.png, as `taichi-hair run` writes, or
+frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are skipped
+with a note. Rows are labelled with the folder's name and the frame numbers.
 """
 
 import argparse

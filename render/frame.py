@@ -39,9 +39,10 @@ class RenderSettings:
     dual scattering through the hair (fibre model; False: single scattering with shadows, as a
     path tracer with max_depth 2). strand_lod in (0, 1]: level of detail for sub-pixel hair:
     render this fraction of the strands (a fixed seeded subset), widened by 1 / strand_lod, with
-    their opacity lowered so that a pixel's expected transmittance is unchanged. hair_model: "fibre" (physically based, `render.fibre`, from each Hair's
-    material) or "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows,
-    hair_shading: see their classes."""
+    their opacity lowered so that a pixel's expected transmittance is unchanged.
+    hair_model: "fibre" (physically based, `render.fibre`, from each Hair's material) or
+    "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows, hair_shading: see their
+    classes."""
 
     supersample: int = 1
     layers: int = 4

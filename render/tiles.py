@@ -3,7 +3,8 @@
 The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into the tiles its
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
-tile walks its bins front to back, sorts each bin's segments exactly by depth (Shell sort), and blends each segment's fragments into the tile's pixels front to back:
+tile walks its bins front to back, sorts each bin's segments exactly by depth (Shell sort),
+and blends each segment's fragments into the tile's pixels front to back:
 
     C += T alpha c,   T *= 1 - alpha        (T: transmittance so far, 1 at the start)
 

@@ -164,10 +164,8 @@ class FrameWriter:
         orbit, the same box turned about the vertical every 15 degrees."""
         groom = scene.groom
         pts = [groom.positions[s, : groom.node_counts[s]] for s in range(groom.n_strands)]
-        pts = np.concatenate(pts)
-        length = max(float(np.linalg.norm(np.diff(groom.positions[s, : groom.node_counts[s]], axis=0),
-                                          axis=1).sum()) for s in range(groom.n_strands))
-        parts = [pts] + [m.vertices for m in self.capsules]
+        length = max(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pts)
+        parts = pts + [m.vertices for m in self.capsules]
         if self.mesh is not None:
             parts.append(np.asarray(self.mesh[0]))
         allp = np.concatenate(parts)
@@ -177,9 +175,9 @@ class FrameWriter:
         box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         if self.shot.orbit_degrees:
             c = 0.5 * (lo + hi)
-            turns = [np.radians(a) for a in range(0, 360, 15)]
-            box = np.concatenate([(box - c) @ np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0],
-                                                         [0, 0, 1]]).T + c for a in turns])
+            turn = lambda a: np.array([[math.cos(a), -math.sin(a), 0.0],
+                                       [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+            box = np.concatenate([(box - c) @ turn(math.radians(a)).T + c for a in range(0, 360, 15)])
         return self.render.fit_camera(box, direction=self.shot.view, up=(0.0, 0.0, 1.0),
                                       fov_y=self.shot.fov_y, width=self.shot.width,
                                       height=self.shot.height, margin=1.02)
