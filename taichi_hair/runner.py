@@ -160,8 +160,9 @@ class FrameWriter:
 
     def _fitted(self, scene):
         """The camera fitted to what the shot can show: head, capsules and the rest groom,
-        grown by a third of the longest strand sideways and downwards (swinging hair); for an
-        orbit, the same box turned about the vertical every 15 degrees."""
+        grown sideways by half the longest strand L (swinging hair) and down to L below the
+        lowest root (hanging hair); for an orbit, that box turned about the vertical every 15
+        degrees."""
         groom = scene.groom
         pts = [groom.positions[s, : groom.node_counts[s]] for s in range(groom.n_strands)]
         length = max(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pts)
@@ -170,8 +171,9 @@ class FrameWriter:
             parts.append(np.asarray(self.mesh[0]))
         allp = np.concatenate(parts)
         lo, hi = allp.min(axis=0), allp.max(axis=0)
-        grow = length / 3.0
-        lo, hi = lo - np.array([grow, grow, grow]), hi + np.array([grow, grow, 0.0])
+        lowest_root = min(float(p[0, 2]) for p in pts)
+        lo = np.array([lo[0] - length / 2, lo[1] - length / 2, min(lo[2], lowest_root - length)])
+        hi = np.array([hi[0] + length / 2, hi[1] + length / 2, hi[2]])
         box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         if self.shot.orbit_degrees:
             c = 0.5 * (lo + hi)
