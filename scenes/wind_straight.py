@@ -20,4 +20,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
-                view=(0.00, 0.99, 0.16))
+                view=(0.00, 0.99, 0.16), reach=0.6)

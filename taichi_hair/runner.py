@@ -28,7 +28,8 @@ class Shot:
     simulator's largest step dt [s] (at most one frame; fitted down so that whole steps fill a
     frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up;
     None: fitted to the head, neck and hair, seen from `view`, a direction from the subject
-    towards the eye) orbiting `orbit_degrees` about the vertical through the target over the shot (a
+    towards the eye, with room for the hair to move `reach` x its longest strand sideways and
+    down) orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
     and fibre width [m], supersampling, and what `--usd` writes: "guides" (the simulated
     strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both"."""
@@ -41,6 +42,7 @@ class Shot:
     eye: tuple | None = None
     target: tuple | None = None
     view: tuple = (0.0, 1.0, 0.2)
+    reach: float = 0.35
     fov_y: float = 35.0
     orbit_degrees: float = 0.0
     dense_strands: int = 0
@@ -67,6 +69,7 @@ class Shot:
         if (self.eye is None) != (self.target is None):
             raise ValueError("eye and target must both be given (a fixed camera) or both None (fitted)")
         _vec("view", self.view)
+        _scalar("reach", self.reach, "strand lengths")
         if self.dt > 1.0 / self.fps:
             raise ValueError(f"dt must be at most one frame, 1/fps = {1.0 / self.fps:.4g} s at fps = "
                              f"{self.fps}, got {self.dt!r}")
@@ -159,10 +162,9 @@ class FrameWriter:
             width=shot.width, height=shot.height)
 
     def _fitted(self, scene):
-        """The camera fitted to what the shot can show: head, capsules and the rest groom,
-        grown sideways by half the longest strand L (swinging hair) and down to L below the
-        lowest root (hanging hair); for an orbit, that box turned about the vertical every 15
-        degrees."""
+        """The camera fitted to what the shot can show: head, capsules and the rest groom, its
+        box grown by shot.reach x the longest strand sideways and down (moving hair); for an
+        orbit, that box turned about the vertical every 15 degrees."""
         groom = scene.groom
         pts = [groom.positions[s, : groom.node_counts[s]] for s in range(groom.n_strands)]
         length = max(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pts)
@@ -171,9 +173,8 @@ class FrameWriter:
             parts.append(np.asarray(self.mesh[0]))
         allp = np.concatenate(parts)
         lo, hi = allp.min(axis=0), allp.max(axis=0)
-        lowest_root = min(float(p[0, 2]) for p in pts)
-        lo = np.array([lo[0] - length / 2, lo[1] - length / 2, min(lo[2], lowest_root - length)])
-        hi = np.array([hi[0] + length / 2, hi[1] + length / 2, hi[2]])
+        grow = self.shot.reach * length
+        lo, hi = lo - grow, hi + np.array([grow, grow, 0.0])
         box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         if self.shot.orbit_degrees:
             c = 0.5 * (lo + hi)
