@@ -143,6 +143,9 @@ def scalp_interpolator(scene, simulator, n_dense, seed=0):
                         head=(np.zeros(3), cranium), head_margin=0.001)
 
 
+BACKDROP = (0.32, 0.33, 0.35)  # sRGB: a neutral mid-dark grey, so that fine hair reads against it
+
+
 class FrameWriter:
     """Renders one frame of hair (+ head mesh and its neck/shoulder capsules) with `render`,
     three-point lit, and writes it as a PNG."""
@@ -202,7 +205,7 @@ class FrameWriter:
         lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))
         hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
         image = self.render.render_frame(camera, hair=hair, meshes=meshes, lights=lights,
-                                         settings=self.settings)
+                                         background=BACKDROP, settings=self.settings)
         self.render.write_png(path, image)
 
 
