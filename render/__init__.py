@@ -5,16 +5,20 @@ whatever arch Taichi was initialised with; if nobody initialised it, the first r
 `render.init()` (CPU). See render/README.md.
 """
 
-from .camera import Camera
+from .camera import Camera, fit_camera
+from .fibre import HairMaterial, fibre_scattering
 from .frame import RenderSettings, hair_shadow, render_buffers, render_frame
-from .geometry import Hair, Mesh
+from .geometry import Hair, Mesh, capsule_mesh
 from .runtime import init
-from .shading import HairShading, Light, Lighting, kajiya_kay
+from .shading import (AmbientLight, DirectionalLight, HairShading, Light, Lighting, kajiya_kay,
+                      three_point_lights)
 from .shadows import ShadowSettings
 from .video import ProgressBar, Turntable, read_png, turntable, write_mp4, write_png
 
 __all__ = [
-    "Camera", "Hair", "HairShading", "Light", "Lighting", "Mesh", "ProgressBar",
-    "RenderSettings", "ShadowSettings", "Turntable", "hair_shadow", "init", "kajiya_kay",
-    "read_png", "render_buffers", "render_frame", "turntable", "write_mp4", "write_png",
+    "AmbientLight", "Camera", "DirectionalLight", "Hair", "HairMaterial", "HairShading", "Light",
+    "Lighting", "Mesh", "ProgressBar", "RenderSettings", "ShadowSettings", "Turntable",
+    "capsule_mesh", "fibre_scattering", "fit_camera", "hair_shadow", "init", "kajiya_kay",
+    "read_png", "render_buffers", "render_frame", "three_point_lights", "turntable", "write_mp4",
+    "write_png",
 ]

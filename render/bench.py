@@ -2,10 +2,14 @@
 
     python -m render.bench [--strands 100000] [--segments 32] [--width 1280] [--height 720]
                            [--repeats 3] [--arch cpu]
+    python -m render.bench --table [--repeats 5]     # old vs new compositor, all sizes
 
 Times `render_frame` on whatever arch Taichi is initialised with (initialising it with
 --arch if nobody has): one warm-up frame, whose time includes kernel compilation and is
-reported apart, then the median of `repeats` frames.
+reported apart, then the median of `repeats` frames. --table prints a Markdown table of the
+median frame time for the k-buffer compositor (the older one), the tiled compositor, and the
+tiled compositor with strand_lod 0.25, at 640x480 / 1280x720 / 1920x1080 and 20k / 100k
+strands, all in the same run and with the same (fibre) shading.
 """
 
 import argparse
@@ -75,7 +79,8 @@ def bench_render(n_strands: int = 100_000, n_segments: int = 32, width: int = 12
     """Time one frame of synthetic hair (n_strands x n_segments, 80 um fibres) on a sphere head.
 
     Returns {"arch", "n_strands", "n_segments", "width", "height", "first_frame_s" (includes
-    kernel compilation), "compile_s" (first frame minus median), "median_ms", "frames_ms"}.
+    kernel compilation), "compile_s" (first frame minus median), "median_ms", "frames_ms",
+    "median_cpu_ms" (process CPU time, all threads: robust when other jobs share the cores)}.
     """
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
@@ -87,16 +92,35 @@ def bench_render(n_strands: int = 100_000, n_segments: int = 32, width: int = 12
     t0 = time.perf_counter()
     render_frame(camera, hair=hair, meshes=[head], settings=settings)
     first = time.perf_counter() - t0
-    times = []
+    times, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         render_frame(camera, hair=hair, meshes=[head], settings=settings)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     median = statistics.median(times)
     return dict(arch=str(ti.lang.impl.current_cfg().arch).split(".")[-1], n_strands=len(hair.segments) // n_segments,
                 n_segments=n_segments, width=width, height=height, first_frame_s=first,
                 compile_s=max(first - median, 0.0), median_ms=median * 1e3,
-                frames_ms=[t * 1e3 for t in times])
+                frames_ms=[t * 1e3 for t in times], median_cpu_ms=statistics.median(cpu) * 1e3)
+
+
+TABLE_SETTINGS = {"kbuffer (old)": RenderSettings(compositor="kbuffer"),
+                  "tiles (new)": RenderSettings(compositor="tiles"),
+                  "tiles + lod 0.25": RenderSettings(compositor="tiles", strand_lod=0.25)}
+
+
+def bench_table(strands=(20_000, 100_000), sizes=((640, 480), (1280, 720), (1920, 1080)),
+                repeats: int = 5, n_segments: int = 32):
+    """Yields one row per (strands, size), same run: {"strands", "size", and per name of
+    TABLE_SETTINGS (median wall ms, median CPU ms)}."""
+    for n in strands:
+        for w, h in sizes:
+            row = {"strands": n, "size": f"{w}x{h}"}
+            for name, settings in TABLE_SETTINGS.items():
+                r = bench_render(n, n_segments, w, h, repeats, settings)
+                row[name] = (r["median_ms"], r["median_cpu_ms"])
+            yield row
 
 
 def main(argv=None) -> None:
@@ -107,8 +131,18 @@ def main(argv=None) -> None:
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--arch", default="cpu")
+    p.add_argument("--table", action="store_true", help="old vs new compositor at all sizes")
     args = p.parse_args(argv)
     init(args.arch)
+    if args.table:
+        names = list(TABLE_SETTINGS)
+        print("wall ms / CPU ms (all threads), median of", args.repeats)
+        print("| strands x 32 | resolution | " + " | ".join(names) + " |")
+        print("|---|---|" + "---|" * len(names))
+        for r in bench_table(repeats=args.repeats):
+            print(f"| {r['strands'] // 1000}k | {r['size']} | "
+                  + " | ".join(f"{r[k][0]:.0f} / {r[k][1]:.0f}" for k in names) + " |", flush=True)
+        return
     r = bench_render(args.strands, args.segments, args.width, args.height, args.repeats)
     rows = [("arch", r["arch"]), ("strands x segments", f"{r['n_strands']} x {r['n_segments']}"),
             ("resolution", f"{r['width']} x {r['height']}"),

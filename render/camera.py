@@ -172,3 +172,33 @@ def project_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
         s = project(view, proj, x[i])
         screen[i] = s
         width_px[i] = width[i] * proj[0] * s[3]
+
+
+def fit_camera(points, *, direction=(0.0, 1.0, 0.25), up=(0.0, 0.0, 1.0), fov_y: float = 35.0,
+               width: int = 640, height: int = 480, margin: float = 1.08) -> Camera:
+    """A camera looking along -direction (direction: from the subject towards the eye) at the
+    centre of the bounding box of `points` [m] (N, 3), just far enough that every corner of
+    the box projects inside the frame with `margin` (> 1) to spare: the subject centred and
+    filling the frame."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0 or not np.all(np.isfinite(p)):
+        raise ValueError("points must be a non-empty finite (N, 3) array [m]")
+    if not margin >= 1.0:
+        raise ValueError(f"margin must be >= 1, got {margin}")
+    d = _vec3("direction", direction)
+    d = d / np.linalg.norm(d)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - centre
+    u = np.asarray(up, dtype=np.float64)
+    right = np.cross(-d, u)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, -d)
+    tan_y = np.tan(np.radians(fov_y) / 2.0)
+    tan_x = tan_y * width / height
+    # a corner at offsets (a right, b up, c towards the eye) fits when |a| <= tan_x (dist - c)
+    a, b, c = corners @ right, corners @ true_up, corners @ d
+    dist = margin * max(np.max(c + np.abs(a) / tan_x), np.max(c + np.abs(b) / tan_y), 1e-3)
+    return Camera(eye=tuple(centre + d * dist), target=tuple(centre), up=tuple(u), fov_y=fov_y,
+                  width=width, height=height, near=max(1e-3, 1e-3 * dist))

@@ -1,25 +1,28 @@
 """One frame: upload the scene, shadow maps, rasterise, shade, composite, encode.
 
 The stages, in order (each a kernel or two from camera, shadows, shading and raster):
-  1. light maps: hair opacity slabs and mesh depth from the key light (`shadows`);
+  1. light maps: hair opacity slabs and mesh depth from each directional light (`shadows`);
+     stages 1-3's shading runs once per directional light, adding up;
   2. meshes: project, depth-test triangles, shade visible surfaces per pixel (Lambert + Blinn,
      shadowed) over the background;
-  3. hair: project, look up each vertex's shadow, shade vertices (Kajiya-Kay), insert segment
-     fragments in front of the meshes into the k-buffer / tail;
+  3. hair: project, look up each vertex's shadow, shade vertices (fibre scattering or
+     Kajiya-Kay), insert segment fragments in front of the meshes into the k-buffer / tail;
   4. composite hair over meshes per pixel; box-filter supersamples; encode 8-bit sRGB.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import taichi as ti
 
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
-from .raster import clear_frame, composite, finish, raster_hair, raster_triangles, vec3i
+from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
 from .runtime import buffer, ensure_init, upload
-from .shading import HairShading, Lighting, shade_hair_vertices, shade_mesh
-from .shadows import ShadowSettings, build_shadow_map, points_transmittance
+from .fibre import shade_fibre_vertices, upload_tables
+from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
+from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
+from .tiles import composite_hair
 
 vec2f = ti.types.vector(2, ti.f32)
 vec2i = ti.types.vector(2, ti.i32)
@@ -30,12 +33,25 @@ class RenderSettings:
     """supersample: render at s x s samples per pixel and box-filter down, s in [1, 4]; hair is
     anti-aliased by coverage already, this smooths mesh silhouettes. layers: hair fragments kept
     exactly sorted per pixel (the k-buffer's K), in [1, 16]; the rest are blended unordered
-    behind them. shadows, hair_shading: see their classes."""
+    behind them (compositor "kbuffer" only). compositor: "tiles" (default: depth-sorted
+    front-to-back blending per screen tile, `render.tiles`) or "kbuffer" (the K nearest
+    fragments exact, the rest an unordered tail, `raster.composite`). multiple_scattering:
+    dual scattering through the hair (fibre model; False: single scattering with shadows, as a
+    path tracer with max_depth 2). strand_lod in (0, 1]: level of detail for sub-pixel hair:
+    render this fraction of the strands (a fixed seeded subset), widened by 1 / strand_lod, with
+    their opacity lowered so that a pixel's expected transmittance is unchanged.
+    hair_model: "fibre" (physically based, `render.fibre`, from each Hair's material) or
+    "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows, hair_shading: see their
+    classes."""
 
     supersample: int = 1
     layers: int = 4
     shadows: ShadowSettings = ShadowSettings()
     hair_shading: HairShading = HairShading()
+    hair_model: str = "fibre"
+    compositor: str = "tiles"
+    multiple_scattering: bool = True
+    strand_lod: float = 1.0
 
     def __post_init__(self):
         if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
@@ -46,6 +62,12 @@ class RenderSettings:
             raise ValueError(f"shadows must be a ShadowSettings, got {type(self.shadows).__name__}")
         if not isinstance(self.hair_shading, HairShading):
             raise ValueError(f"hair_shading must be a HairShading, got {type(self.hair_shading).__name__}")
+        if not 0.0 < self.strand_lod <= 1.0:
+            raise ValueError(f"strand_lod must be in (0, 1], got {self.strand_lod}")
+        if self.compositor not in ("tiles", "kbuffer"):
+            raise ValueError(f"compositor must be 'tiles' or 'kbuffer', got {self.compositor!r}")
+        if self.hair_model not in ("fibre", "kajiya_kay"):
+            raise ValueError(f"hair_model must be 'fibre' or 'kajiya_kay', got {self.hair_model!r}")
 
 
 def _padded(a: np.ndarray) -> np.ndarray:
@@ -53,21 +75,30 @@ def _padded(a: np.ndarray) -> np.ndarray:
     return a if len(a) else np.zeros((1, *a.shape[1:]), dtype=a.dtype)
 
 
-def _upload_hair(hair: Hair | None) -> dict:
+def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
     if hair is None:
         x, w = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         seg, nbr, col, opacity = np.zeros(0, np.int32), np.zeros((0, 2), np.int32), x, 1.0
+        sigma, beta_m = x, w
+    elif lod < 1.0:
+        d = hair.subset(lod)
+        x, w, seg, nbr = d["x"], d["widths"] / np.float32(lod), d["seg"], d["nbr"]
+        col, opacity, sigma, beta_m = d["colour"], hair.opacity, d["sigma"], d["beta_m"]
     else:
         x, w, seg, nbr = hair.vertices, hair.vertex_widths, hair.segments, hair.neighbours
         col, opacity = hair.vertex_colours, hair.opacity
+        sigma, beta_m = hair.vertex_sigma, hair.vertex_beta_m
     nv = max(len(x), 1)
     return dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
                 seg=upload("hair_seg", _padded(seg), ti.i32),
                 nbr=upload("hair_nbr", _padded(nbr), vec2i, 2),
                 colour=upload("hair_colour", _padded(col), vec3f, 3),
+                sigma=upload("hair_sigma", _padded(sigma), vec3f, 3),
+                beta_m=upload("hair_beta_m", _padded(beta_m), f32),
                 width_px=buffer("hair_width_px", f32, (nv,)),
                 screen=buffer("hair_screen", vec4f, (nv,), 4),
                 shadow=buffer("hair_shadow", f32, (nv,)),
+                terms=buffer("hair_shadow_terms", vec3f, (nv,), 3),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
                 n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
 
@@ -86,68 +117,132 @@ def _upload_meshes(meshes) -> dict:
                 n_vertices=len(m["x"]), n_faces=len(m["faces"]))
 
 
-def _check(camera, hair, meshes, lighting, settings):
+@ti.kernel
+def lod_opacity(n: ti.i32, width_px: ti.types.ndarray(dtype=f32, ndim=1), keep: f32,
+                rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+    """Strand level of detail: a kept strand of width w' = w / keep [px] stands for 1 / keep
+    strands of width w, so its pixel alpha becomes c' = 1 - (1 - c)^(1 / keep), c = min(w, 1) a:
+    the expected transmittance of a pixel is unchanged. One thread per vertex."""
+    for i in range(n):
+        w_new = width_px[i]
+        c = ti.min(w_new * keep, f32(1.0)) * rgba[i][3]
+        c_new = f32(1.0) - ti.exp(ti.log(ti.max(f32(1.0) - c, f32(1e-6))) / keep)
+        rgba[i][3] = ti.min(c_new / ti.max(ti.min(w_new, f32(1.0)), f32(1e-6)), f32(1.0))
+
+
+def _check(camera, hair, meshes, settings):
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a render.Camera, got {type(camera).__name__}")
     if hair is not None and not isinstance(hair, Hair):
         raise ValueError(f"hair must be a render.Hair or None, got {type(hair).__name__}")
     if isinstance(meshes, Mesh) or not all(isinstance(m, Mesh) for m in meshes):
         raise ValueError("meshes must be a sequence of render.Mesh")
-    if not isinstance(lighting, Lighting):
-        raise ValueError(f"lighting must be a render.Lighting, got {type(lighting).__name__}")
     if not isinstance(settings, RenderSettings):
         raise ValueError(f"settings must be a RenderSettings, got {type(settings).__name__}")
 
 
-def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(),
-                   lighting: Lighting = Lighting(), background=(0.82, 0.82, 0.84),
+def _lights(lights, lighting) -> tuple[list, np.ndarray]:
+    """(directional lights, ambient radiance (3,)) from `lights` or the older `lighting`."""
+    if lights is not None and lighting is not None:
+        raise ValueError("give lights=[...] or lighting=Lighting(...), not both")
+    if lights is None:
+        lighting = Lighting() if lighting is None else lighting
+        if not isinstance(lighting, Lighting):
+            raise ValueError(f"lighting must be a render.Lighting, got {type(lighting).__name__}")
+        lights = lighting.lights()
+    return split_lights(lights)
+
+
+def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre,
+                smap):
+    """Shade the hair vertices for one directional light (adding to earlier lights)."""
+    to_light = light.to_light
+    irradiance = np.asarray(light.irradiance_rgb, np.float32)
+    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
+                   smap.params)
+    if settings.hair_model == "fibre":
+        ntab, atab, dtab = upload_tables(fibre)
+        points_shadow_terms(hd["n_vertices"], hd["x"], *shadow_args, hd["terms"])
+        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
+                             hd["terms"], hd["opacity"], eye, to_light, irradiance, ambient,
+                             int(first), int(settings.multiple_scattering),
+                             np.float32(settings.shadows.density), fibre.shifts(), ntab, atab,
+                             dtab, hd["rgba"])
+    else:
+        points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
+        shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
+                            hd["opacity"], eye, to_light, irradiance / np.float32(np.pi), ambient,
+                            int(first), settings.hair_shading.packed(), hd["rgba"])
+
+
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base):
+    """Per directional light: its shadow maps, the meshes' and the hair's shading, adding up
+    (the first pass also writes the ambient term and the background)."""
+    passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
+    for k, light in enumerate(passes):
+        shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
+        smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
+                                md if md["n_faces"] else None)
+        irradiance = np.asarray(light.irradiance_rgb, np.float32)
+        # Lambert: radiance = albedo / pi x irradiance x cos
+        shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
+                   md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
+                   bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
+                   smap.params, int(k == 0), base)
+        if hd["n_vertices"]:
+            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap)
+
+
+def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
+                   lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                    settings: RenderSettings = RenderSettings()) -> dict:
     """Render one frame and return its buffers at the camera's resolution (H, W):
     "image" (H, W, 3) uint8 sRGB, "rgb" (H, W, 3) float32 linear radiance, "alpha" (H, W)
     float32 hair opacity (0 where no hair, ~ fibre width in pixels summed over a column).
-    background: sRGB colour in [0, 1] behind everything."""
-    _check(camera, hair, meshes, lighting, settings)
+    lights: a list of `DirectionalLight` and `AmbientLight`; or lighting: the older
+    `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
+    [0, 1] behind everything."""
+    _check(camera, hair, meshes, settings)
+    directional, ambient = _lights(lights, lighting)
     bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
     ensure_init()
     meshes = list(meshes)
     s = settings.supersample
     height, width = camera.height * s, camera.width * s
-    hd, md = _upload_hair(hair), _upload_meshes(meshes)
-    smap = build_shadow_map(settings.shadows, lighting.key.to_light,
-                            hd if hd["n_vertices"] else None, md if md["n_faces"] else None)
+    hd, md = _upload_hair(hair, settings.strand_lod), _upload_meshes(meshes)
     view, proj = camera.matrices(s)
     near = np.float32(camera.near)
     eye = np.asarray(camera.eye, np.float32)
-    to_light = np.asarray(lighting.key.to_light, np.float32)
-    light, ambient = lighting.key.radiance(), lighting.ambient_radiance()
 
     mesh_key = buffer("mesh_key", ti.i64, (height, width))
-    kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
-    tail = buffer("tail", vec4f, (height, width), 4)
     base = buffer("base", vec3f, (height, width), 3)
-    clear_frame(mesh_key, kbuf, tail)
+    tiled = settings.compositor == "tiles"
+    if tiled:
+        clear_keys_2d(mesh_key)
+    else:
+        kbuf = buffer("kbuf", ti.i64, (height, width, settings.layers))
+        tail = buffer("tail", vec4f, (height, width), 4)
+        clear_frame(mesh_key, kbuf, tail)
 
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
-    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                   smap.params)
-    shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
-               md["material"], eye, to_light, light, ambient, bg, *shadow_args, base)
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base)
 
+    # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
-    points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
-    shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
-                        hd["opacity"], eye, to_light, light, ambient,
-                        settings.hair_shading.packed(), hd["rgba"])
-    raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
-                mesh_key, kbuf, tail)
-
+    if settings.strand_lod < 1.0:
+        lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
-    composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, base,
-              rgb_s, alpha_s)
+    if tiled:
+        composite_hair(hd, near, mesh_key, base, rgb_s, alpha_s)
+    else:
+        raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
+                    mesh_key, kbuf, tail)
+        composite(hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], kbuf, tail, base,
+                  rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u8, (camera.height, camera.width, 3))
@@ -155,11 +250,11 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(),
     return {"image": image.to_numpy(), "rgb": out_rgb.to_numpy(), "alpha": out_alpha.to_numpy()}
 
 
-def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(),
-                 lighting: Lighting = Lighting(), background=(0.82, 0.82, 0.84),
+def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
+                 lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                  settings: RenderSettings = RenderSettings()) -> np.ndarray:
     """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`."""
-    return render_buffers(camera, hair=hair, meshes=meshes, lighting=lighting,
+    return render_buffers(camera, hair=hair, meshes=meshes, lights=lights, lighting=lighting,
                           background=background, settings=settings)["image"]
 
 

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .fibre import HairMaterial, colour_from_sigma, sigma_from_colour
+
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] -> linear light, same shape."""
@@ -69,6 +71,10 @@ class Hair:
     widths [m] > 0: fibre (or ribbon) width; a scalar, (S,) per strand, or per vertex
         ((S, N) or a list of [N_i]). Real hair is 50-100 um wide.
     opacity in (0, 1]: alpha of a fibre covering a whole pixel.
+    material: a `HairMaterial` for the physically based fibre shading (per-strand variation
+        drawn from its seed). None: the absorption is inverted from `colours` per vertex
+        (`HairMaterial.from_colour`, beta_n = 0.3) and the other parameters are the defaults.
+        With a material, `colours` is ignored and Kajiya-Kay uses the material's colour.
 
     Derived at construction (float32 / int32, V vertices, E segments): `vertices` (V, 3),
     `vertex_colours` (V, 3) linear, `vertex_widths` (V,), `segments` (E,) index of each
@@ -80,11 +86,16 @@ class Hair:
     colours: object = (0.30, 0.18, 0.10)
     widths: object = 1e-4
     opacity: float = 1.0
+    material: HairMaterial | None = None
     vertices: np.ndarray = field(init=False, repr=False)
     vertex_colours: np.ndarray = field(init=False, repr=False)
     vertex_widths: np.ndarray = field(init=False, repr=False)
     segments: np.ndarray = field(init=False, repr=False)
     neighbours: np.ndarray = field(init=False, repr=False)
+    vertex_sigma: np.ndarray = field(init=False, repr=False)
+    vertex_beta_m: np.ndarray = field(init=False, repr=False)
+    fibre: HairMaterial = field(init=False, repr=False)
+    strand_starts: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
         strands = _strands(self.points)
@@ -114,6 +125,50 @@ class Hair:
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
         set_("segments", idx[~is_last].astype(np.int32))
         set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
+        set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
+        self._set_optics(counts, srgb_to_linear(colours))
+
+    def subset(self, fraction: float) -> dict:
+        """Level of detail: a fixed, seeded `fraction` of the strands (the same strands for
+        every frame of the same groom, nested as the fraction grows), as arrays shaped like the
+        derived fields: x, widths, seg, nbr, colour, sigma, beta_m. Widths are not changed."""
+        cache = self.__dict__.setdefault("_lod_cache", {})
+        if fraction in cache:
+            return cache[fraction]
+        n_strands = len(self.strand_starts) - 1
+        rank = np.random.default_rng(12345).permutation(n_strands)
+        keep = np.sort(np.nonzero(rank < max(1, round(fraction * n_strands)))[0])
+        lo, hi = self.strand_starts[keep], self.strand_starts[keep + 1]
+        counts = hi - lo
+        idx = np.repeat(lo - np.cumsum(np.concatenate([[0], counts[:-1]])), counts) + np.arange(counts.sum())
+        remap = np.full(len(self.vertices), -1, np.int64)
+        remap[idx] = np.arange(len(idx))
+        seg = remap[self.segments]
+        seg = seg[seg >= 0]
+        cache.clear()   # one level kept per groom
+        cache[fraction] = dict(x=self.vertices[idx], widths=self.vertex_widths[idx],
+                               seg=seg.astype(np.int32), nbr=remap[self.neighbours[idx]].astype(np.int32),
+                               colour=self.vertex_colours[idx], sigma=self.vertex_sigma[idx],
+                               beta_m=self.vertex_beta_m[idx])
+        return cache[fraction]
+
+    def _set_optics(self, counts: np.ndarray, linear: np.ndarray) -> None:
+        set_ = lambda n, v: object.__setattr__(self, n, v)
+        m = self.material
+        if m is None:
+            fibre = HairMaterial()
+            sigma = sigma_from_colour(linear, fibre.beta_n)
+            beta_m = np.full(len(linear), fibre.beta_m)
+        elif isinstance(m, HairMaterial):
+            fibre = m
+            s_strand, b_strand = m.strands(len(counts))
+            sigma, beta_m = np.repeat(s_strand, counts, axis=0), np.repeat(b_strand, counts)
+            set_("vertex_colours", colour_from_sigma(sigma, m.beta_n).astype(np.float32))
+        else:
+            raise ValueError(f"material must be a render.HairMaterial or None, got {type(m).__name__}")
+        set_("fibre", fibre)
+        set_("vertex_sigma", np.ascontiguousarray(sigma, dtype=np.float32))
+        set_("vertex_beta_m", np.ascontiguousarray(beta_m, dtype=np.float32))
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -189,3 +244,31 @@ def merge_meshes(meshes) -> dict:
         material=cat([np.tile([m.specular, m.shininess], (len(m.faces), 1)) for m in meshes],
                      (0, 2)).astype(np.float32),
     )
+
+
+def capsule_mesh(p0, p1, radius: float, colours=(0.80, 0.62, 0.52), sectors: int = 32,
+                 rings: int = 8) -> Mesh:
+    """A capsule (the segment p0-p1 [m] swept by a sphere of `radius` [m]) as a closed
+    triangle mesh: a cylinder with hemispherical caps, `sectors` around, `rings` per cap."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    axis = p1 - p0
+    length = np.linalg.norm(axis)
+    if not (radius > 0 and length > 0):
+        raise ValueError(f"capsule needs radius > 0 m and p0 != p1, got radius {radius}")
+    w = axis / length
+    helper = np.array([1.0, 0.0, 0.0]) if abs(w[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(w, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    # latitude from -pi/2 (below p0) to +pi/2 (above p1); the cylinder joins the two equators
+    lat = np.concatenate([np.linspace(-np.pi / 2, 0, rings + 1), np.linspace(0, np.pi / 2, rings + 1)])
+    base = np.concatenate([np.zeros(rings + 1), np.full(rings + 1, length)])
+    phi = np.linspace(0.0, 2 * np.pi, sectors + 1)[None, :]
+    ring = np.cos(lat)[:, None, None] * (np.cos(phi)[..., None] * u + np.sin(phi)[..., None] * v)
+    verts = (p0 + radius * ring + (base + radius * np.sin(lat))[:, None, None] * w).reshape(-1, 3)
+    n_rows = len(lat)
+    i, j = np.meshgrid(np.arange(n_rows - 1), np.arange(sectors), indexing="ij")
+    a = (i * (sectors + 1) + j).ravel()
+    b, c, d = a + sectors + 1, a + 1, a + sectors + 2
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([c, b, d], 1)])
+    return Mesh(vertices=verts, faces=faces, colours=colours)

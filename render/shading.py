@@ -27,6 +27,89 @@ from .shadows import transmittance
 vec8f = ti.types.vector(8, ti.f32)
 
 
+def _rgb(name: str, value) -> np.ndarray:
+    c = np.asarray(value, dtype=np.float64)
+    if c.shape != (3,) or not np.all(np.isfinite(c) & (c >= 0.0)):
+        raise ValueError(f"{name} must be 3 finite values >= 0 (linear RGB), got {value!r}")
+    return c
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    """A distant light. direction: the direction the light travels, from the light into the
+    scene (as Mitsuba's `directional` emitter; normalised here). irradiance_rgb: linear RGB
+    irradiance [W/m^2] on a surface facing the light. shadows: occluded by hair and meshes."""
+
+    direction: tuple = (-0.4, -0.7, -0.6)
+    irradiance_rgb: tuple = (3.0, 3.0, 3.0)
+    shadows: bool = True
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
+            raise ValueError(f"direction must be a non-zero 3-vector, got {self.direction!r}")
+        object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
+        object.__setattr__(self, "irradiance_rgb", tuple(_rgb("irradiance_rgb", self.irradiance_rgb)))
+
+    @property
+    def to_light(self) -> np.ndarray:
+        """Unit vector from the scene towards the light, (3,) float32."""
+        return -np.asarray(self.direction, dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class AmbientLight:
+    """Uniform environment light of linear RGB radiance `radiance_rgb` [W/(m^2 sr)] from every
+    direction, unshadowed (Mitsuba's `constant` emitter without occlusion)."""
+
+    radiance_rgb: tuple = (0.2, 0.21, 0.24)
+
+    def __post_init__(self):
+        object.__setattr__(self, "radiance_rgb", tuple(_rgb("radiance_rgb", self.radiance_rgb)))
+
+
+def three_point_lights(view_direction=(0.0, 1.0, 0.25), up=(0.0, 0.0, 1.0),
+                       irradiance: float = 6.0, ambient: float = 0.12) -> list:
+    """Key, fill and rim lights for a camera looking along -view_direction (from the subject
+    towards the eye) with `up`: the key (shadowed) 45 degrees to the camera's left and 35 up,
+    the fill (half the key, unshadowed) 60 degrees to the right and level, the rim (0.8 of
+    the key, shadowed) from behind and above; plus a cool ambient of `ambient` x irradiance / pi
+    radiance. irradiance: the key's [W/m^2], warm white."""
+    d = np.asarray(view_direction, float)
+    d /= np.linalg.norm(d)
+    u = np.asarray(up, float)
+    right = np.cross(-d, u)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, -d)
+
+    def towards(az, el):   # direction to the light: az from the camera towards the right
+        a, e = np.radians(az), np.radians(el)
+        return np.cos(e) * (np.cos(a) * d + np.sin(a) * right) + np.sin(e) * true_up
+
+    warm, cool = np.array([1.0, 0.95, 0.88]), np.array([0.85, 0.9, 1.0])
+    e = float(irradiance)
+    return [DirectionalLight(tuple(-towards(-45, 35)), tuple(e * warm)),
+            DirectionalLight(tuple(-towards(60, 0)), tuple(0.5 * e * cool), shadows=False),
+            DirectionalLight(tuple(-towards(180, 40)), tuple(0.8 * e * warm)),
+            AmbientLight(tuple(ambient * e / math.pi * cool))]
+
+
+def split_lights(lights) -> tuple[list, np.ndarray]:
+    """(directional lights, summed ambient radiance (3,) float32) of a list of lights."""
+    if isinstance(lights, (DirectionalLight, AmbientLight)):
+        lights = [lights]
+    directional, ambient = [], np.zeros(3)
+    for i, light in enumerate(lights):
+        if isinstance(light, DirectionalLight):
+            directional.append(light)
+        elif isinstance(light, AmbientLight):
+            ambient += light.radiance_rgb
+        else:
+            raise ValueError(f"lights[{i}] must be a render.DirectionalLight or AmbientLight, "
+                             f"got {type(light).__name__}")
+    return directional, ambient.astype(np.float32)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Light:
     """Directional key light. to_light: direction from the scene towards the light (normalised
@@ -67,6 +150,13 @@ class Lighting:
 
     def ambient_radiance(self) -> np.ndarray:
         return (srgb_to_linear(self.ambient) * self.ambient_intensity).astype(np.float32)
+
+    def lights(self) -> list:
+        """The same light as [DirectionalLight, AmbientLight]: the key's irradiance is pi times
+        its radiance(), so a white Lambert surface facing it still shows colour x intensity."""
+        return [DirectionalLight(direction=tuple(-np.asarray(self.key.to_light)),
+                                 irradiance_rgb=tuple(math.pi * self.key.radiance())),
+                AmbientLight(radiance_rgb=tuple(self.ambient_radiance()))]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -154,15 +244,18 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
                         albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
                         shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
-                        eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, kk: vec8f,
-                        rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
-    """rgba[i] = (linear radiance of vertex i, opacity). Tangent from the strand neighbours.
-    Shapes (V,). One thread per vertex."""
+                        eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, first: ti.i32,
+                        kk: vec8f, rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+    """rgba[i] (+)= (linear radiance of vertex i under one key light, plus the ambient when
+    `first`, opacity). Tangent from the strand neighbours. Shapes (V,). One thread per vertex."""
     for i in range(n):
         t = unit(x[nbr[i][1]] - x[nbr[i][0]])
         v = unit(eye - x[i])
         c = shade_hair(t, to_light, v, albedo[i], light, ambient, shadow[i], kk)
-        rgba[i] = vec4f(c[0], c[1], c[2], opacity)
+        if first:
+            rgba[i] = vec4f(c[0], c[1], c[2], opacity)
+        else:
+            rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
 
 
 @ti.kernel
@@ -201,9 +294,10 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                sview: mat4f, sproj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
                opacity: ti.types.ndarray(dtype=f32, ndim=3),
                bounds: ti.types.ndarray(dtype=f32, ndim=1),
-               smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f,
+               smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f, first: ti.i32,
                base: ti.types.ndarray(dtype=vec3f, ndim=2)):
-    """base (H, W) = linear radiance of the visible mesh surface, or the background. Position,
+    """base (H, W) = linear radiance of the visible mesh surface, or the background; with
+    `first` = 0 only the key light's direct term is added (one call per light). Position,
     normal and colour are interpolated perspective-correctly from the face in mesh_key; the
     shadow lookup is offset along the normal by two shadow texels against self-shadow acne.
     One thread per pixel."""
@@ -223,6 +317,9 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
             shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
                                    opacity, bounds, smesh_key, sparams)
             col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
-            c = shade_surface(n, to_light, v, col, light, ambient, shadow,
+            c = shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
                               material[f][0], material[f][1])
-        base[py, px] = c
+        if first:
+            base[py, px] = c
+        elif key != empty_key():
+            base[py, px] += c

@@ -182,21 +182,47 @@ def column_opacity(z0: ti.template(), opacity: ti.template(), bounds: ti.templat
 
 
 @ti.func
-def transmittance(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
-                  bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> f32:
-    """Fraction in [0, 1] of the key light reaching world point p [m]."""
-    result = f32(1.0)
+def shadow_terms(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
+                 bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> vec3f:
+    """(hair opacity in front of p towards the light ~ fibres crossed, fraction of the light
+    not blocked by meshes in [0, 1], hair opacity behind p in its column) at world point p [m],
+    bilinear over the 2x2 texels around it; (0, 1, 0) when shadows are off."""
+    result = vec3f(0.0, 1.0, 0.0)
     if params[0] > 0.0:
         s = project(view, proj, p)
         i, j, fx, fy = bilinear(s, z0.shape[0])
-        hair, lit = f32(0.0), f32(0.0)
+        hair, lit, behind = f32(0.0), f32(0.0), f32(0.0)
+        last = opacity.shape[2] - 1
         for dy, dx in ti.static(ti.ndrange(2, 2)):
             w = corner_weight(fx, fy, dx, dy)
-            hair += w * column_opacity(z0, opacity, bounds, i + dx, j + dy, s[2])
+            front = column_opacity(z0, opacity, bounds, i + dx, j + dy, s[2])
+            hair += w * front
+            behind += w * ti.max(opacity[j + dy, i + dx, last] - front, f32(0.0))
             if key_depth(mesh_key[j + dy, i + dx]) > s[2] - params[2]:
                 lit += w
-        result = ti.exp(-params[1] * hair) * lit
+        result = vec3f(hair, lit, behind)
     return result
+
+
+@ti.func
+def transmittance(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
+                  bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> f32:
+    """Fraction in [0, 1] of the key light reaching world point p [m]:
+    exp(-density x hair opacity in front) x mesh visibility."""
+    t = shadow_terms(p, view, proj, z0, opacity, bounds, mesh_key, params)
+    return ti.exp(-params[1] * t[0]) * t[1]
+
+
+@ti.kernel
+def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+                        view: mat4f, proj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
+                        opacity: ti.types.ndarray(dtype=f32, ndim=3),
+                        bounds: ti.types.ndarray(dtype=f32, ndim=1),
+                        mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
+                        out: ti.types.ndarray(dtype=vec3f, ndim=1)):
+    """out[i] = shadow_terms at x[i] [m], shapes (n,). One thread per point."""
+    for k in range(n):
+        out[k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
 @ti.kernel

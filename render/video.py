@@ -146,15 +146,16 @@ def _geometry(scene, frame: int) -> tuple[Hair | None, list]:
 
 
 def turntable(out_dir, scene, camera: Camera, *, shot: Turntable = Turntable(),
-              lighting: Lighting = Lighting(), background=(0.82, 0.82, 0.84),
+              lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
               settings: RenderSettings = RenderSettings(), video_name: str = "turntable.mp4",
-              progress: bool = True) -> dict:
+              progress: bool = True, lights=None) -> dict:
     """Render a camera orbit to out_dir/frame_XXXXX.png and out_dir/video_name, resuming.
 
     scene: static geometry or a callable frame index -> geometry, where geometry is a Hair,
     (hair or None, meshes) or (polylines, colours, widths, meshes) as `render.Hair` takes them.
     Frames whose PNG already exists and opens at the camera's size are not rendered again
-    (the callable is not called for them). Returns {"video": Path, "frames": [Path],
+    (the callable is not called for them). lights / lighting: as `render_frame` takes them
+    (fixed in the world while the camera turns). Returns {"video": Path, "frames": [Path],
     "rendered": [frame indices rendered by this call]}.
     """
     if not isinstance(shot, Turntable):
@@ -167,7 +168,7 @@ def turntable(out_dir, scene, camera: Camera, *, shot: Turntable = Turntable(),
     for n, k in enumerate(todo):
         hair, meshes = _geometry(scene, k)
         cam = camera.orbit(shot.degrees * k / shot.frames)
-        image = render_frame(cam, hair=hair, meshes=meshes, lighting=lighting,
+        image = render_frame(cam, hair=hair, meshes=meshes, lights=lights, lighting=lighting,
                              background=background, settings=settings)
         write_png(paths[k], image)
         if bar is not None:

@@ -22,5 +22,5 @@ def build() -> th.Scene:
 
 
 def shot() -> Shot:
-    return Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.1, 0.1, 0.1),
-                eye=(0.15, 0.6, -0.05), target=(0.15, 0.0, -0.08))
+    return Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.6, 0.5, 0.4),
+                view=(0.00, 1.00, 0.05), reach=1.0)

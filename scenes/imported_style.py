@@ -48,5 +48,4 @@ def interpolator(scene, simulator):
 
 
 def shot() -> Shot:
-    return Shot(frames=48, fps=24, hair_colour=(0.45, 0.28, 0.12), eye=(0.35, 0.65, 0.05),
-                target=(0.0, 0.0, -0.05))
+    return Shot(frames=48, fps=24, hair_colour=(0.45, 0.28, 0.12), view=(0.47, 0.87, 0.13))

@@ -105,4 +105,4 @@ def setup(scene, simulator) -> None:
 
 def shot() -> Shot:
     return Shot(frames=96, fps=24, dense_strands=12000, hair_colour=(0.2, 0.12, 0.06),
-                eye=(0.75, -0.75, 0.0), target=(0.0, -0.08, -0.2))
+                view=(0.73, -0.65, 0.20))

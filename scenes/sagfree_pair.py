@@ -55,4 +55,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=72, fps=24, hair_width=6e-4, hair_colour=(0.25, 0.15, 0.08),
-                eye=(-0.02, -1.35, -0.2), target=(-0.02, 0.0, -0.22), fov_y=30.0)
+                view=(0.00, -1.00, 0.01), fov_y=30.0, reach=0.1)

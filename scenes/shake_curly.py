@@ -20,4 +20,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=72, fps=24, dt=1e-3, dense_strands=20000, hair_colour=(0.12, 0.07, 0.04),
-                eye=(0.1, 0.75, 0.1), target=(0.0, 0.0, -0.05))
+                view=(0.13, 0.97, 0.19))

@@ -34,4 +34,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=72, fps=24, dense_strands=15000, hair_colour=(0.2, 0.12, 0.06),
-                eye=(0.45, -0.6, 0.2), target=(0.0, 0.0, -0.05))
+                view=(0.57, -0.76, 0.32))

@@ -20,4 +20,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=96, fps=24, dense_strands=20000, hair_colour=(0.35, 0.2, 0.1),
-                eye=(0.0, 0.85, 0.0), target=(0.0, 0.0, -0.12))
+                view=(0.00, 0.99, 0.14))

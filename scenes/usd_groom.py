@@ -56,5 +56,5 @@ def interpolator(scene, simulator):
 def shot() -> Shot:
     _, curves = _selection()
     colour = tuple(float(c) for c in np.nanmean(curves.colors, axis=0)) if curves.colors is not None else (0.4, 0.24, 0.11)
-    return Shot(frames=48, fps=24, hair_colour=colour, eye=(0.35, 0.65, 0.05), target=(0.0, 0.0, -0.05),
+    return Shot(frames=48, fps=24, hair_colour=colour, view=(0.47, 0.87, 0.13),
                 usd="both")

@@ -20,4 +20,4 @@ def build() -> th.Scene:
 
 def shot() -> Shot:
     return Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
-                eye=(0.0, 0.8, 0.05), target=(0.0, 0.0, -0.08))
+                view=(0.00, 0.99, 0.16), reach=0.6)

@@ -26,8 +26,10 @@ PROGRESS_FILE = "progress.json"
 class Shot:
     """How a scene is filmed: frames at fps (one frame = 1/fps s of simulated time), the
     simulator's largest step dt [s] (at most one frame; fitted down so that whole steps fill a
-    frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up)
-    orbiting `orbit_degrees` about the vertical through the target over the shot (a
+    frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up;
+    None: fitted to the head, neck and hair, seen from `view`, a direction from the subject
+    towards the eye, with room for the hair to move `reach` x its longest strand sideways and
+    down) orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
     and fibre width [m], supersampling, and what `--usd` writes: "guides" (the simulated
     strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both"."""
@@ -37,8 +39,10 @@ class Shot:
     dt: float = 1e-3
     width: int = 640
     height: int = 480
-    eye: tuple = (0.0, 0.75, 0.15)
-    target: tuple = (0.0, 0.0, -0.05)
+    eye: tuple | None = None
+    target: tuple | None = None
+    view: tuple = (0.0, 1.0, 0.2)
+    reach: float = 0.35
     fov_y: float = 35.0
     orbit_degrees: float = 0.0
     dense_strands: int = 0
@@ -59,8 +63,13 @@ class Shot:
         _scalar("dt", self.dt, "s", inclusive=False)
         _scalar("fov_y", self.fov_y, "degrees", inclusive=False)
         _scalar("hair_width", self.hair_width, "m", inclusive=False)
-        _vec("eye", self.eye)
-        _vec("target", self.target)
+        for name in ("eye", "target"):
+            if getattr(self, name) is not None:
+                _vec(name, getattr(self, name))
+        if (self.eye is None) != (self.target is None):
+            raise ValueError("eye and target must both be given (a fixed camera) or both None (fitted)")
+        _vec("view", self.view)
+        _scalar("reach", self.reach, "strand lengths")
         if self.dt > 1.0 / self.fps:
             raise ValueError(f"dt must be at most one frame, 1/fps = {1.0 / self.fps:.4g} s at fps = "
                              f"{self.fps}, got {self.dt!r}")
@@ -134,32 +143,69 @@ def scalp_interpolator(scene, simulator, n_dense, seed=0):
                         head=(np.zeros(3), cranium), head_margin=0.001)
 
 
+BACKDROP = (0.32, 0.33, 0.35)  # sRGB: a neutral mid-dark grey, so that fine hair reads against it
+
+
 class FrameWriter:
-    """Renders one frame of hair (+ head mesh) with `render` and writes it as a PNG."""
+    """Renders one frame of hair (+ head mesh and its neck/shoulder capsules) with `render`,
+    three-point lit, and writes it as a PNG."""
 
     def __init__(self, shot: Shot, scene):
         import render
         self.render = render
         self.shot = shot
-        self.mesh = scene.head.mesh if scene.head is not None else None
+        head = scene.head
+        self.mesh = head.mesh if head is not None else None
+        model = head.model if head is not None else None
+        self.capsules = [render.capsule_mesh(p0, p1, r) for p0, p1, r in
+                         (model.capsules if model is not None else ())]
         self.settings = render.RenderSettings(supersample=shot.supersample)
+        self.base = self._fitted(scene) if shot.eye is None else render.Camera(
+            eye=tuple(shot.eye), target=tuple(shot.target), up=(0.0, 0.0, 1.0), fov_y=shot.fov_y,
+            width=shot.width, height=shot.height)
+
+    def _fitted(self, scene):
+        """The camera fitted to what the shot can show: head, capsules and the rest groom, its
+        box grown by shot.reach x the longest strand sideways and down (moving hair); for an
+        orbit, that box turned about the vertical every 15 degrees."""
+        groom = scene.groom
+        pts = [groom.positions[s, : groom.node_counts[s]] for s in range(groom.n_strands)]
+        length = max(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pts)
+        parts = pts + [m.vertices for m in self.capsules]
+        if self.mesh is not None:
+            parts.append(np.asarray(self.mesh[0]))
+        allp = np.concatenate(parts)
+        lo, hi = allp.min(axis=0), allp.max(axis=0)
+        grow = self.shot.reach * length
+        lo, hi = lo - grow, hi + np.array([grow, grow, 0.0])
+        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        if self.shot.orbit_degrees:
+            c = 0.5 * (lo + hi)
+            turn = lambda a: np.array([[math.cos(a), -math.sin(a), 0.0],
+                                       [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+            box = np.concatenate([(box - c) @ turn(math.radians(a)).T + c for a in range(0, 360, 15)])
+        return self.render.fit_camera(box, direction=self.shot.view, up=(0.0, 0.0, 1.0),
+                                      fov_y=self.shot.fov_y, width=self.shot.width,
+                                      height=self.shot.height, margin=1.02)
 
     def camera(self, frame):
         angle = math.radians(self.shot.orbit_degrees * frame / max(self.shot.frames, 1))
-        c, s = math.cos(angle), math.sin(angle)
-        eye = np.asarray(self.shot.eye) - self.shot.target
-        eye = np.array([c * eye[0] - s * eye[1], s * eye[0] + c * eye[1], eye[2]]) + self.shot.target
-        return self.render.Camera(eye=tuple(eye), target=tuple(self.shot.target), up=(0.0, 0.0, 1.0),
-                                  fov_y=self.shot.fov_y, width=self.shot.width, height=self.shot.height)
+        return self.base.orbit(math.degrees(angle)) if angle else self.base
 
     def write(self, path, frame, hair_points, head_pose):
+        rotation, translation = head_pose
         meshes = []
         if self.mesh is not None:
-            rotation, translation = head_pose
             meshes.append(self.render.Mesh(vertices=np.asarray(self.mesh[0]) @ rotation.T + translation,
                                            faces=self.mesh[1]))
+        for m in self.capsules:
+            meshes.append(self.render.Mesh(vertices=m.vertices @ rotation.T + translation, faces=m.faces))
+        camera = self.camera(frame)
+        view = np.asarray(camera.eye) - np.asarray(camera.target)
+        lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))
         hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
-        image = self.render.render_frame(self.camera(frame), hair=hair, meshes=meshes, settings=self.settings)
+        image = self.render.render_frame(camera, hair=hair, meshes=meshes, lights=lights,
+                                         background=BACKDROP, settings=self.settings)
         self.render.write_png(path, image)
 
 

@@ -21,8 +21,9 @@ NO_SPEC = HairShading(primary_strength=0.0, secondary_strength=0.0)
 RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
 
 
-def flat_settings(layers=4, shadows=False, **kw):
-    return RenderSettings(layers=layers, hair_shading=NO_SPEC,
+def flat_settings(layers=4, shadows=False, compositor="tiles", **kw):
+    return RenderSettings(layers=layers, compositor=compositor, hair_shading=NO_SPEC,
+                          hair_model="kajiya_kay",
                           shadows=ShadowSettings(enabled=shadows), **kw)
 
 
@@ -45,17 +46,48 @@ def crossing(z_red, z_blue, width_px=4.0):
 
 # -- depth order ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("layers", [1, 4])
+@pytest.mark.parametrize("compositor, layers", [("tiles", 4), ("kbuffer", 1), ("kbuffer", 4)])
 @pytest.mark.parametrize("camera, z_red, z_blue, winner", [
     (FRONT, 0.05, -0.05, RED), (FRONT, -0.05, 0.05, BLUE),
     (BACK, 0.05, -0.05, BLUE), (BACK, -0.05, 0.05, RED)])
-def test_nearer_strand_wins_at_crossing(layers, camera, z_red, z_blue, winner):
+def test_nearer_strand_wins_at_crossing(compositor, layers, camera, z_red, z_blue, winner):
     out = render.render_buffers(camera, hair=crossing(z_red, z_blue), lighting=FLAT,
-                                settings=flat_settings(layers))
+                                settings=flat_settings(layers, compositor=compositor))
     centre = out["rgb"][H // 2 - 1:H // 2 + 1, W // 2 - 1:W // 2 + 1].reshape(-1, 3)
     np.testing.assert_allclose(centre, np.tile(winner, (4, 1)), atol=0.02)
     # both strands are drawn away from the crossing
     assert out["rgb"][H // 2, W // 2 - 8, 0] > 0.9 and out["rgb"][H // 2 - 8, W // 2, 2] > 0.9
+
+
+def test_tiles_blend_front_to_back_like_an_exact_sort():
+    """Dense synthetic hair: the tiled compositor against the k-buffer with K = 16 exact
+    layers (the tail barely matters there): same coverage, nearly the same colour."""
+    from render.bench import sphere_mesh, synthetic_hair
+    hair = synthetic_hair(1500, 16, width=4e-4)
+    cam = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=96, height=72)
+    out = {c: render.render_buffers(cam, hair=hair, meshes=[sphere_mesh()],
+                                    settings=RenderSettings(compositor=c, layers=16))
+           for c in ("tiles", "kbuffer")}
+    assert out["tiles"]["alpha"].max() > 0.99 and (out["tiles"]["alpha"] > 0.5).mean() > 0.1
+    np.testing.assert_allclose(out["tiles"]["alpha"], out["kbuffer"]["alpha"], atol=2e-3)
+    diff = np.abs(out["tiles"]["rgb"] - out["kbuffer"]["rgb"])
+    assert diff.mean() < 2e-3 and np.percentile(diff, 99) < 0.02, (diff.mean(), diff.max())
+
+
+def test_strand_lod_keeps_coverage_and_colour():
+    """Level of detail: half or a quarter of the strands, widened, against the full render
+    of sub-pixel hair: the same hair coverage and mean colour within a few per cent."""
+    from render.bench import sphere_mesh, synthetic_hair
+    hair = synthetic_hair(6000, 16, width=8e-5)
+    cam = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=160, height=120)
+    out = {f: render.render_buffers(cam, hair=hair, meshes=[sphere_mesh()],
+                                    settings=RenderSettings(strand_lod=f)) for f in (1.0, 0.5, 0.25)}
+    mask = out[1.0]["alpha"] > 0.05
+    assert 0.1 < out[1.0]["alpha"][mask].mean() < 0.95  # partly transparent: LOD matters
+    for f in (0.5, 0.25):
+        assert out[f]["alpha"][mask].mean() == pytest.approx(out[1.0]["alpha"][mask].mean(), rel=0.05)
+        np.testing.assert_allclose(out[f]["rgb"][mask].mean(axis=0), out[1.0]["rgb"][mask].mean(axis=0),
+                                   rtol=0.05)
 
 
 # -- anti-aliasing ------------------------------------------------------------------------
@@ -229,6 +261,14 @@ def test_frame_is_uint8_srgb_of_camera_size():
     assert np.all(np.abs(img.astype(int) - 128) <= 1)  # sRGB 0.5 round-trips through linear
 
 
+def test_default_settings_render_meshes_alone_and_hair_alone():
+    quad = _quad(0.0, 0.3, (0.5, 0.5, 0.5))
+    assert render.render_frame(FRONT, meshes=[quad]).mean() > 20
+    hair = Hair(points=[line((-0.2, 0.0, 0.0), (0.2, 0.0, 0.0))], widths=px_width(FRONT, 1.0, 3.0))
+    out = render.render_buffers(FRONT, hair=hair, lights=[render.DirectionalLight((0, 0, -1), (3, 3, 3))])
+    assert out["alpha"].max() > 0.99 and np.isfinite(out["rgb"]).all()
+
+
 def test_write_mp4_keeps_odd_size(tmp_path):
     frames = [np.full((25, 33, 3), 40 * k, np.uint8) for k in range(4)]
     path = render.write_mp4(tmp_path / "odd.mp4", frames, fps=10)
@@ -276,6 +316,8 @@ def test_turntable_writes_mp4_and_resumes(tmp_path):
     (lambda: Hair(points=np.zeros((2, 3, 3)), colours=(2.0, 0.0, 0.0)), "colours"),
     (lambda: Mesh(vertices=np.zeros((3, 3)), faces=[(0, 1, 3)]), "faces"),
     (lambda: RenderSettings(layers=0), "layers"),
+    (lambda: RenderSettings(compositor="abuffer"), "compositor"),
+    (lambda: RenderSettings(strand_lod=0.0), "strand_lod"),
     (lambda: ShadowSettings(resolution=8), "resolution"),
     (lambda: Turntable(frames=0), "frames"),
 ])
@@ -298,3 +340,46 @@ def test_render_knows_nothing_of_physics():
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             assert not any(n.split(".")[0] == "taichi_hair" for n in names), path
+
+
+def test_contact_sheet_takes_first_middle_last(tmp_path):
+    from render.contact import contact_sheet
+    for name, n in (("a", 5), ("b", 2)):
+        frames = tmp_path / name / "frames"
+        frames.mkdir(parents=True)
+        for k in range(n):
+            render.write_png(frames / f"frame_{k:05d}.png", np.full((40, 60, 3), 50 * k, np.uint8))
+    (tmp_path / "empty").mkdir()
+    r = contact_sheet([tmp_path / "a", tmp_path / "empty", tmp_path / "b"], tmp_path / "sheet.png",
+                      thumb=30)
+    assert r["rows"] == ["a", "b"] and r["skipped"] == [str(tmp_path / "empty")]
+    sheet = render.read_png(r["path"])
+    assert sheet.shape[0] == 2 * (22 + 20)
+    # row a: frames 0, 2, 4 -> greys 0, 100, 200 below the label
+    assert [int(sheet[30, 2 + 34 * j, 0]) for j in range(3)] == [0, 100, 200]
+
+
+@pytest.mark.parametrize("direction", [(0.0, 1.0, 0.25), (0.7, -0.7, 0.2), (0.0, -1.0, 0.0)])
+def test_fit_camera_centres_and_fills(direction):
+    pts = np.random.default_rng(1).normal(size=(200, 3)) * [0.1, 0.05, 0.2] + [0.3, -0.2, 0.1]
+    cam = render.fit_camera(pts, direction=direction, width=160, height=90, margin=1.05)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    s = cam.project(box)[:, :2]
+    assert s.min() >= 0.0 and s[:, 0].max() <= 160 and s[:, 1].max() <= 90    # all in frame
+    span = s.max(axis=0) - s.min(axis=0)
+    assert max(span[0] / 160, span[1] / 90) > 0.8                             # and filling it
+    np.testing.assert_allclose(cam.project(0.5 * (lo + hi))[:2], [80, 45], atol=4)  # centred
+
+
+def test_capsule_mesh_and_three_point_lights():
+    m = render.capsule_mesh((0, 0, 0), (0, 0, -0.2), 0.05)
+    r = np.linalg.norm(m.vertices[:, :2], axis=1)
+    assert np.all(r <= 0.05 + 1e-9) and m.vertices[:, 2].min() == pytest.approx(-0.25)
+    assert m.vertices[:, 2].max() == pytest.approx(0.05)
+    lights = render.three_point_lights((0.0, 1.0, 0.2))
+    directional = [lt for lt in lights if isinstance(lt, render.DirectionalLight)]
+    assert len(directional) == 3 and any(isinstance(lt, render.AmbientLight) for lt in lights)
+    # the key lights the subject from the camera's side, the rim from behind
+    assert np.dot(directional[0].to_light, (0.0, 1.0, 0.2)) > 0.3
+    assert np.dot(directional[2].to_light, (0.0, 1.0, 0.2)) < -0.3

@@ -1,0 +1,110 @@
+"""A contact sheet for review: the first, middle and last frame of every run, one row each.
+
+    python -m render.contact out/* --out out/contact_sheet.png [--thumb 320]
+    python -m render.contact --run scenes/*.py --frames 24 --out out/contact_sheet.png
+
+With --run, each argument is a scene script, first run with `taichi-hair run` (as a separate
+command: render imports nothing of taichi_hair) into out/contact_runs/<scene> at the given
+--frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's
+output folder (holding frames/frame_NNNNN.png, as `taichi-hair run` writes, or
+frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are skipped
+with a note. Rows are labelled with the folder's name and the frame numbers.
+"""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from .plot import draw_text
+from .video import read_png, write_png
+
+LABEL_H = 22
+
+
+def _frames(folder: Path) -> list[Path]:
+    for d in (folder / "frames", folder):
+        found = sorted(d.glob("frame_*.png"))
+        if found:
+            return found
+    return []
+
+
+def _thumb(image: np.ndarray, width: int) -> np.ndarray:
+    """Box-filter downscale by the integer factor that brings the width to <= `width`."""
+    f = max(1, -(-image.shape[1] // width))
+    h, w = (image.shape[0] // f) * f, (image.shape[1] // f) * f
+    a = image[:h, :w].astype(np.float32).reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3))
+    return (a + 0.5).astype(np.uint8)
+
+
+def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
+    """Write the sheet as a PNG; returns {"path", "rows": [folder names], "skipped": [...]}."""
+    rows, names, skipped = [], [], []
+    for folder in map(Path, folders):
+        frames = _frames(folder)
+        if not frames:
+            skipped.append(str(folder))
+            continue
+        picks = sorted({0, len(frames) // 2, len(frames) - 1})
+        thumbs = [_thumb(read_png(frames[k]), thumb) for k in picks]
+        h = max(t.shape[0] for t in thumbs)
+        cells = [np.pad(t, ((0, h - t.shape[0]), (0, thumb - t.shape[1] + 4), (0, 0)),
+                        constant_values=255) for t in thumbs]
+        row = np.concatenate(cells, axis=1)
+        label = np.full((LABEL_H, row.shape[1], 3), 255, np.uint8)
+        draw_text(label, 4, 4, f"{folder.name}  frames {', '.join(frames[k].stem[6:] for k in picks)}")
+        rows.append(np.concatenate([label, row]))
+        names.append(folder.name)
+    if not rows:
+        raise ValueError(f"no frame_*.png found in any of {[str(f) for f in folders]}")
+    width = max(r.shape[1] for r in rows)
+    sheet = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)),
+                                   constant_values=255) for r in rows])
+    path = write_png(out_path, sheet)
+    return {"path": path, "rows": names, "skipped": skipped}
+
+
+def run_scenes(scripts, runs_dir, frames: int, width: int, height: int, dense: int | None) -> list:
+    """Run each scene script with the `taichi-hair run` command; returns the output folders
+    (a scene that fails is reported and left out)."""
+    import subprocess
+    import sys
+    folders = []
+    for script in map(Path, scripts):
+        out = Path(runs_dir) / script.stem
+        cmd = [sys.executable, "-m", "taichi_hair", "run", str(script), "--out", str(out),
+               "--frames", str(frames), "--width", str(width), "--height", str(height)]
+        if dense is not None:
+            cmd += ["--dense", str(dense)]
+        print(" ".join(cmd[2:]), flush=True)
+        if subprocess.run(cmd).returncode == 0:
+            folders.append(out)
+        else:
+            print(f"failed: {script}", flush=True)
+    return folders
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("folders", nargs="+", help="run folders, or scene scripts with --run")
+    p.add_argument("--out", default="out/contact_sheet.png")
+    p.add_argument("--thumb", type=int, default=320)
+    p.add_argument("--run", action="store_true", help="the arguments are scene scripts: run them first")
+    p.add_argument("--frames", type=int, default=24)
+    p.add_argument("--width", type=int, default=320)
+    p.add_argument("--height", type=int, default=240)
+    p.add_argument("--dense", type=int, default=None, help="dense strands (default: the scene's)")
+    args = p.parse_args(argv)
+    folders = args.folders
+    if args.run:
+        folders = run_scenes(folders, Path(args.out).parent / "contact_runs", args.frames,
+                             args.width, args.height, args.dense)
+    r = contact_sheet(folders, args.out, args.thumb)
+    for s in r["skipped"]:
+        print(f"skipped (no frames): {s}")
+    print(f"{r['path']}: {len(r['rows'])} rows")
+
+
+if __name__ == "__main__":
+    main()

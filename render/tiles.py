@@ -1,0 +1,246 @@
+"""Tiled front-to-back hair compositing (the default compositor).
+
+The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into the tiles its
+footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
+range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
+tile walks its bins front to back, sorts each bin's segments exactly by depth (Shell sort),
+and blends each segment's fragments into the tile's pixels front to back:
+
+    C += T alpha c,   T *= 1 - alpha        (T: transmittance so far, 1 at the start)
+
+skipping pixels already opaque (T < 1e-3) and stopping the tile once all of its pixels are.
+Fragments are ordered by their segment's mid-depth, so ordering is exact between segments
+and approximate only where two segments' depth ranges interleave within a pixel. Coverage is
+the same box-filtered analytic coverage as the k-buffer compositor (`raster.coverage`).
+The result per pixel: rgb = C + T * base (mesh or background), alpha = 1 - T.
+"""
+
+import taichi as ti
+
+from .camera import f32, vec3f, vec4f
+from .raster import coverage, pixel_centre
+
+TILE = 16
+N_BINS = 256
+OPAQUE = 1e-3
+_GAPS = (1750, 701, 301, 132, 57, 23, 10, 4, 1)
+
+
+@ti.func
+def segment_span(a: vec4f, b: vec4f, w: f32, width: ti.i32, height: ti.i32):
+    """Pixel bounds (x0, x1, y0, y1) of the footprint of a segment from a to b with max width
+    w [px]; x0 > x1 when it misses the image."""
+    reach = f32(0.5) * w + f32(0.5)
+    x0 = ti.max(ti.cast(ti.ceil(ti.min(a[0], b[0]) - reach - f32(0.5)), ti.i32), 0)
+    x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0]) + reach - f32(0.5)), ti.i32), width - 1)
+    y0 = ti.max(ti.cast(ti.ceil(ti.min(a[1], b[1]) - reach - f32(0.5)), ti.i32), 0)
+    y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1]) + reach - f32(0.5)), ti.i32), height - 1)
+    return x0, x1, y0, y1
+
+
+@ti.func
+def visible(a: vec4f, b: vec4f, near: f32) -> ti.i32:
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return ti.min(a[2], b[2]) > near and dx * dx + dy * dy > f32(1e-12)
+
+
+@ti.func
+def depth_bin(a: vec4f, b: vec4f, zrange: ti.types.vector(2, ti.f32)) -> ti.i32:
+    z = f32(0.5) * (a[2] + b[2])
+    return ti.math.clamp(ti.cast((z - zrange[0]) * zrange[1], ti.i32), 0, N_BINS - 1)
+
+
+@ti.kernel
+def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                screen: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32,
+                out: ti.types.ndarray(dtype=f32, ndim=1)):
+    """out = (min, max) segment mid-depth [m] of the segments in front of `near`."""
+    out[0] = f32(3.0e38)
+    out[1] = f32(-3.0e38)
+    for e in range(n):
+        a, b = screen[seg[e]], screen[seg[e] + 1]
+        if ti.min(a[2], b[2]) > near:
+            z = f32(0.5) * (a[2] + b[2])
+            ti.atomic_min(out[0], z)
+            ti.atomic_max(out[1], z)
+
+
+@ti.kernel
+def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                 width_px: ti.types.ndarray(dtype=f32, ndim=1), near: f32,
+                 zrange: ti.types.vector(2, ti.f32), width: ti.i32, height: ti.i32,
+                 scatter: ti.i32, cursor: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 items: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+    """Pass 1 (scatter = 0): count segments per (tile, depth bin) into cursor. Pass 2
+    (scatter = 1, cursor = exclusive offsets): write each segment id into items. One thread
+    per segment."""
+    tiles_x = (width + TILE - 1) // TILE
+    for e in range(n):
+        i = seg[e]
+        a, b = screen[i], screen[i + 1]
+        if visible(a, b, near):
+            x0, x1, y0, y1 = segment_span(a, b, ti.max(width_px[i], width_px[i + 1]), width, height)
+            if x0 <= x1 and y0 <= y1:
+                bin_ = depth_bin(a, b, zrange)
+                for ty in range(y0 // TILE, y1 // TILE + 1):
+                    for tx in range(x0 // TILE, x1 // TILE + 1):
+                        slot = ti.atomic_add(cursor[(ty * tiles_x + tx) * N_BINS + bin_], 1)
+                        if scatter:
+                            items[slot] = e
+
+
+@ti.kernel
+def exclusive_scan(n: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                   offsets: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
+    """offsets[k] = sum of count[:k] for k <= n; count becomes a copy of offsets[:n] (the
+    scatter cursor). Returns the total. Serial (n = tiles x bins, a few hundred thousand)."""
+    total = 0
+    ti.loop_config(serialize=True)
+    for k in range(n):
+        c = count[k]
+        offsets[k] = total
+        count[k] = total
+        total += c
+    offsets[n] = total
+    return total
+
+
+@ti.func
+def seg_depth(e: ti.i32, seg: ti.template(), screen: ti.template()) -> f32:
+    return f32(0.5) * (screen[seg[e]][2] + screen[seg[e] + 1][2])
+
+
+@ti.func
+def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template(), seg: ti.template(),
+             screen: ti.template()):
+    """Sort items[s0:s1] by segment mid-depth in place: Shell sort with Ciura's gaps."""
+    for g in ti.static(_GAPS):
+        if s1 - s0 > g:
+            for k in range(s0 + g, s1):
+                e = items[k]
+                z = seg_depth(e, seg, screen)
+                j = k
+                while j - g >= s0 and seg_depth(items[j - g], seg, screen) > z:
+                    items[j] = items[j - g]
+                    j -= g
+                items[j] = e
+
+
+@ti.kernel
+def composite_tiles(width: ti.i32, height: ti.i32,
+                    offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    items: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                    width_px: ti.types.ndarray(dtype=f32, ndim=1),
+                    rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
+                    mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                    base: ti.types.ndarray(dtype=vec3f, ndim=2),
+                    out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
+                    out_alpha: ti.types.ndarray(dtype=f32, ndim=2)):
+    """Blend each tile's segments front to back over `base`: out_rgb linear radiance,
+    out_alpha hair opacity, (H, W). One thread per tile; out_alpha holds the transmittance
+    while the tile is blended."""
+    tiles_x = (width + TILE - 1) // TILE
+    tiles_y = (height + TILE - 1) // TILE
+    ti.loop_config(block_dim=1)
+    for tile in range(tiles_x * tiles_y):
+        tx0, ty0 = (tile % tiles_x) * TILE, (tile // tiles_x) * TILE
+        tx1, ty1 = ti.min(tx0 + TILE, width) - 1, ti.min(ty0 + TILE, height) - 1
+        for py in range(ty0, ty1 + 1):
+            for px in range(tx0, tx1 + 1):
+                out_rgb[py, px] = vec3f(0.0, 0.0, 0.0)
+                out_alpha[py, px] = f32(1.0)
+        n_open = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+        for bin_ in range(N_BINS):
+            if n_open > 0:
+                s0, s1 = offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1]
+                sort_bin(s0, s1, items, seg, screen)
+                for k in range(s0, s1):
+                    if n_open > 0:
+                        n_open -= blend_segment(items[k], tx0, tx1, ty0, ty1, seg, screen,
+                                                width_px, rgba, mesh_key, out_rgb, out_alpha)
+        for py in range(ty0, ty1 + 1):
+            for px in range(tx0, tx1 + 1):
+                t = out_alpha[py, px]
+                out_rgb[py, px] += t * base[py, px]
+                out_alpha[py, px] = f32(1.0) - t
+
+
+@ti.func
+def blend_segment(e: ti.i32, tx0: ti.i32, tx1: ti.i32, ty0: ti.i32, ty1: ti.i32,
+                  seg: ti.template(), screen: ti.template(), width_px: ti.template(),
+                  rgba: ti.template(), mesh_key: ti.template(), out_rgb: ti.template(),
+                  out_alpha: ti.template()) -> ti.i32:
+    """Blend segment e's fragments inside the tile [tx0, tx1] x [ty0, ty1] behind what is
+    there; returns how many pixels became opaque. Walks the footprint column by column along
+    the segment's major axis, as `raster.raster_hair` does."""
+    closed = 0
+    i = seg[e]
+    a, b = screen[i], screen[i + 1]
+    wa, wb = width_px[i], width_px[i + 1]
+    xmajor = ti.abs(b[0] - a[0]) >= ti.abs(b[1] - a[1])
+    am, an = ti.select(xmajor, a[0], a[1]), ti.select(xmajor, a[1], a[0])
+    bm, bn = ti.select(xmajor, b[0], b[1]), ti.select(xmajor, b[1], b[0])
+    lo_m, hi_m = ti.select(xmajor, tx0, ty0), ti.select(xmajor, tx1, ty1)
+    lo_n, hi_n = ti.select(xmajor, ty0, tx0), ti.select(xmajor, ty1, tx1)
+    dm, dn = bm - am, bn - an
+    length = ti.sqrt(dm * dm + dn * dn)
+    reach = f32(0.5) * ti.max(wa, wb) + f32(0.5)
+    ext_m = reach * ti.abs(dn) / length
+    ext_n = reach * length / ti.abs(dm)
+    m0 = ti.max(ti.cast(ti.ceil(ti.min(am, bm) - ext_m - f32(0.5)), ti.i32), lo_m)
+    m1 = ti.min(ti.cast(ti.floor(ti.max(am, bm) + ext_m - f32(0.5)), ti.i32), hi_m)
+    for m in range(m0, m1 + 1):
+        centre = an + (ti.cast(m, f32) + f32(0.5) - am) * dn / dm
+        n0 = ti.max(ti.cast(ti.ceil(centre - ext_n - f32(0.5)), ti.i32), lo_n)
+        n1 = ti.min(ti.cast(ti.floor(centre + ext_n - f32(0.5)), ti.i32), hi_n)
+        for q in range(n0, n1 + 1):
+            px, py = ti.select(xmajor, m, q), ti.select(xmajor, q, m)
+            t_old = out_alpha[py, px]
+            if t_old > OPAQUE:
+                cv = coverage(pixel_centre(px, py), a, b, wa, wb)
+                if cv[0] > f32(0.0):
+                    s = cv[1]
+                    inv_w = a[3] + s * (b[3] - a[3])
+                    depth = (a[2] * a[3] + s * (b[2] * b[3] - a[2] * a[3])) / inv_w
+                    if depth < key_depth_of(mesh_key[py, px]):
+                        c = rgba[i] * (f32(1.0) - s) + rgba[i + 1] * s
+                        alpha = cv[0] * c[3]
+                        out_rgb[py, px] += t_old * alpha * vec3f(c[0], c[1], c[2])
+                        t_new = t_old * (f32(1.0) - alpha)
+                        out_alpha[py, px] = t_new
+                        if t_new <= OPAQUE:
+                            closed += 1
+    return closed
+
+
+@ti.func
+def key_depth_of(key: ti.i64) -> f32:
+    return ti.bit_cast(ti.cast(key >> 32, ti.i32), f32)
+
+
+def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
+    """Run the tiled compositor on uploaded, projected, shaded hair `hd` (see `render.frame`)
+    over `base` (H, W). Returns {"fragments": segment-tile entries, "tiles": count}."""
+    from .runtime import buffer
+    height, width = base.shape
+    n_tiles = -(-width // TILE) * -(-height // TILE)
+    zr = buffer("tile_zrange", f32, (2,))
+    depth_range(hd["n_segments"], hd["seg"], hd["screen"], near, zr)
+    lo, hi = (float(v) for v in zr.to_numpy())
+    zrange = (lo, N_BINS / max(hi - lo, 1e-6)) if hi >= lo else (0.0, 1.0)
+    cursor = buffer("tile_cursor", ti.i32, (n_tiles * N_BINS,))
+    offsets = buffer("tile_offsets", ti.i32, (n_tiles * N_BINS + 1,))
+    cursor.fill(0)
+    dummy = buffer("tile_items_dummy", ti.i32, (1,))
+    args = (hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], near, zrange, width, height)
+    bin_segments(*args, 0, cursor, dummy)
+    total = exclusive_scan(n_tiles * N_BINS, cursor, offsets)
+    capacity = 1 << max(int(total - 1).bit_length(), 10)   # grow in powers of two: few reallocations
+    items = buffer("tile_items", ti.i32, (capacity,))
+    bin_segments(*args, 1, cursor, items)
+    composite_tiles(width, height, offsets, items, hd["seg"], hd["screen"], hd["width_px"],
+                    hd["rgba"], mesh_key, base, out_rgb, out_alpha)
+    return {"fragments": int(total), "tiles": n_tiles}
