@@ -27,8 +27,8 @@ from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .twist import TWIST_MODES
 from .validation import is_integer, is_real
-from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   place_roots, project_constraints, run_twist_update, strand_mechanical_energy,
+from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepBundles, StepPlan, advance,
+                   kmoch_step, place_roots, project_once, run_twist_update, strand_mechanical_energy,
                    total_elastic_forces)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
@@ -135,6 +135,7 @@ class Simulator:
             projection_iterations=projection_iterations,
             twist_tol=_positive("twist_tol", _default_twist_tol() if twist_tol is None else twist_tol, ""),
             twist_iterations=twist_iterations, root=root)
+        self._bundles = StepBundles(self.model, self.state, self.control)
         self.time = 0.0
         self.steps_taken = 0
         self._snapshot = None
@@ -247,7 +248,7 @@ class Simulator:
         """Move groomed nodes that start inside a collider's margin out of it before the first
         step, so the correction does not turn into a velocity kick (the push over one substep
         would read as metres per second)."""
-        st, md, c = self.state, self.model, self.control
+        st, c = self.state, self.control
         load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
         load_tools(c, self.touch, np.full(2, self.time))
         st.x_prev.copy_from(st.x)
@@ -255,11 +256,7 @@ class Simulator:
         # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
         for _ in range(INITIAL_PROJECTION_ROUNDS):
             st.residuals.fill(0.0)
-            project_constraints(self.plan.projection_tol, self.plan.projection_iterations,
-                                self.plan.n_analytic, True, False, self.plan.mesh, self.plan.touch,
-                                md.node_count, md.inv_mass, md.rest_length, c.head, c.kinds,
-                                c.geometry, c.params, c.sdf, c.sdf_meta, c.tools, c.tool_points,
-                                st.x, st.x_prev, st.dx, *st.scratch_edge, st.counters, st.residuals)
+            project_once(self._bundles, self.plan, c)
             residual = st.residuals.to_numpy()[:, 0]
             if residual.max() <= self.plan.projection_tol:
                 break
@@ -346,10 +343,10 @@ class Simulator:
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total)
                     if self._pins.active else None)
             if staged:
-                kmoch_step(self.model, self.state, self.control, self.plan, h, timers,
+                kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
                            self.interaction.stage if self.interaction is not None else None, pins)
             else:
-                advance(self.model, self.state, self.control, self.plan, h, count, moving, pins)
+                advance(self._bundles, self.plan, self.control, h, count, moving, pins)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
@@ -595,7 +592,7 @@ class Simulator:
         solve of round strands, 1 iteration and residual NaN when every strand is elliptic;
         "none": 0 iterations, residual NaN."""
         self._reset_counters()
-        run_twist_update(self.model, self.state, self.plan)
+        run_twist_update(self._bundles, self.plan, self.control)
         counters = self.state.counters.to_numpy()
         exact = [m.ellipticity == 1.0 for m in self.model.materials]
         report = {"iterations": int(counters[:, COUNTERS["twist_iterations"]].max()),
