@@ -132,11 +132,12 @@ def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False
 
 
 class StepBundles:
-    """One simulator's kernel bundles, built once; the drive bundle is rebuilt only when user
+    """One simulator's kernel bundles, built once: model and state from the rods, contacts and
+    drive from the control once `bind` gives it; the drive bundle is rebuilt only when user
     forces or pins first get their arrays."""
 
-    def __init__(self, model, state, control):
-        md, st, c = model, state, control
+    def __init__(self, model, state):
+        md, st = model, state
         self.model = ModelArgs(node_count=md.node_count, mass=md.mass, inv_mass=md.inv_mass,
                                rest_length=md.rest_length, voronoi=md.voronoi, stiffness=md.stiffness,
                                rest_kappa=md.rest_kappa, rest_twist=md.rest_twist, root_frame=md.root_frame)
@@ -145,10 +146,16 @@ class StepBundles:
                                bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
                                root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
                                counters=st.counters, residuals=st.residuals)
+        self._state, self._control, self.contacts = st, None, None
+        self._drive_key, self._drive = None, None
+
+    def bind(self, control) -> None:
+        """Take the control arrays (control.Control) that drive the steps."""
+        c = control
+        self._control = c
         self.contacts = ContactArgs(kinds=c.kinds, geometry=c.geometry, params=c.params, sdf=c.sdf,
                                     sdf_meta=c.sdf_meta)
-        self._state, self._control = st, c
-        self._drive_key, self._drive = None, None
+        self._drive_key = None
 
     def drive(self, pins=None):
         """The drive bundle; pins: None or the (mode, start, end) arrays of the pin table (an
@@ -544,21 +551,30 @@ def update_twist_kernel(fl: ti.template(), sc: StepScalars, md: ModelArgs, st: S
             st.counters[s, BAD] = 0
 
 
-def total_elastic_forces(model, state, twist: str) -> None:
+def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
     """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
-    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands)."""
+    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands).
+    rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
     md, st = model, state
+    kappa = md.rest_kappa if rest_kappa is None else rest_kappa
     elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
-                   md.rest_kappa, md.voronoi, md.stiffness, st.force)
+                   kappa, md.voronoi, md.stiffness, st.force)
     if twist == "kmoch":
         kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                     st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+                     st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 
-def run_twist_update(bundles: StepBundles, plan: StepPlan, control):
+def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int):
     """The twist stage alone (no-op for "none"); material frames follow the new angles."""
-    if plan.twist != "none":
-        update_twist_kernel(stage_flags(plan), step_scalars(plan, control, 1.0), bundles.model, bundles.state)
+    if twist == "none":
+        return
+    flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
+                       moving_head=False, contacts=False, mesh=False, touch=False, pins=False,
+                       root_mode=ROOT_CODES[root])
+    scalars = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+                          twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0,
+                          pin_f0=0.0, pin_df=0.0)
+    update_twist_kernel(flags, scalars, bundles.model, bundles.state)
 
 
 @ti.kernel
