@@ -53,69 +53,68 @@ def root_keeps_collider(root_distance, margin):
 
 
 @ti.func
-def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.template(),
-                   x_prev: ti.template(), dx: ti.template(), head: ti.template(), now, prev,
-                   n_analytic, kinds: ti.template(), geometry: ti.template(), params: ti.template(),
-                   use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
-                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template(),
-                   tool_now, tool_prev):
-    """Resolve every free node of strand s against the colliders (analytic table, optional
-    distance grid, optional hands). Head-attached shapes are handled in head coordinates so
-    their friction sees the motion relative to the moving head (head poses now / prev); hands
-    sit at tool_points[tool_now] (tool_prev before the step). A collider that holds the strand's
-    own root deeper than its margin (signed distance < -margin) is skipped for that strand:
-    pushing its nodes out would fight the held root every step (a groom rooted inside a neck
-    capsule, say). A root on the surface or within the margin keeps the collider; the Simulator
-    warns about every skipped (strand, collider) pair at construction. A pushed node's step
-    displacement dx becomes x - x_prev. Returns the number of pushes."""
+def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.template(), md: ti.template(),
+                   st: ti.template(), dr: ti.template(), co: ti.template()):
+    """Resolve every free node of strand s against the colliders (co: analytic table, optional
+    distance grid; fl.mesh), and the hands (fl.touch). Head-attached shapes are handled in head
+    coordinates so their friction sees the motion relative to the moving head (head poses now /
+    prev); hands sit at tool_points[tool_now] (tool_prev before the step). A collider that holds
+    the strand's own root deeper than its margin (signed distance < -margin) is skipped for
+    that strand: pushing its nodes out would fight the held root every step (a groom rooted
+    inside a neck capsule, say). A root on the surface or within the margin keeps the collider;
+    the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
+    node's step displacement dx becomes x - x_prev. Returns the number of pushes."""
     pushes = 0
+    x, x_prev, dx, head = ti.static(st.x, st.x_prev, st.dx, dr.head)  # aliases
     root = x[s, 0]
     for c in range(n_analytic):
-        on_head = params[c][3] > 0.5
+        on_head = co.params[c][3] > 0.5
         root_local, _ = collider_frame(on_head, head, now, prev, root, root)
-        d_root, _ = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], root_local)
-        if d_root >= -params[c][1]:  # see root_keeps_collider
-            for i in range(node_count[s]):
-                if inv_mass[s, i] > 0.0:
+        d_root, _ = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0],
+                                      root_local)
+        if d_root >= -co.params[c][1]:  # see root_keeps_collider
+            for i in range(md.node_count[s]):
+                if md.inv_mass[s, i] > 0.0:
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
-                    d, n = analytic_distance(kinds[c], geometry[c, 0], geometry[c, 1], params[c][0], local)
-                    if d < params[c][1]:
-                        local = resolve_contact(local, local_prev, d, n, params[c][1], params[c][2])
+                    d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1],
+                                             co.params[c][0], local)
+                    if d < co.params[c][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2])
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
                         dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
                         pushes += 1
-    if ti.static(use_mesh):
+    if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
-        on_head = sdf_meta[2][0] > 0.5
+        on_head = co.sdf_meta[2][0] > 0.5
         root_local, _ = collider_frame(on_head, head, now, prev, root, root)
-        d_root, _ = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], root_local)
-        if d_root >= -sdf_meta[1][1]:  # see root_keeps_collider
-            for i in range(node_count[s]):
-                if inv_mass[s, i] > 0.0:
+        d_root, _ = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], root_local)
+        if d_root >= -co.sdf_meta[1][1]:  # see root_keeps_collider
+            for i in range(md.node_count[s]):
+                if md.inv_mass[s, i] > 0.0:
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
-                    d, n = grid_distance(sdf, sdf_meta[0], sdf_meta[1][0], local)
-                    if d < sdf_meta[1][1]:
-                        local = resolve_contact(local, local_prev, d, n, sdf_meta[1][1], sdf_meta[1][2])
+                    d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
+                    if d < co.sdf_meta[1][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
-                        dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
+                        dx[s, i] = x[s, i] - x_prev[s, i]
                         pushes += 1
-    if ti.static(use_touch):
-        for k in range(tools.shape[0]):
-            if ti.cast(tools[k][0], ti.i32) == HAND:
+    if ti.static(fl.touch):
+        for k in range(dr.tools.shape[0]):
+            if ti.cast(dr.tools[k][0], ti.i32) == HAND:
                 # in the hand's frame: its own motion over the step does not count as slip
-                centre = tool_points[tool_now, k]
-                for i in range(node_count[s]):
-                    if inv_mass[s, i] > 0.0:
+                centre = dr.tool_points[tool_now, k]
+                for i in range(md.node_count[s]):
+                    if md.inv_mass[s, i] > 0.0:
                         local = x[s, i] - centre
-                        local_prev = x_prev[s, i] - tool_points[tool_prev, k]
-                        d, n = sphere_distance(local, tools[k][1])
-                        if d < tools[k][2]:
-                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, tools[k][2],
-                                                               tools[k][3])
-                            dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
-                        pushes += 1
+                        local_prev = x_prev[s, i] - dr.tool_points[tool_prev, k]
+                        d, n = sphere_distance(local, dr.tools[k][1])
+                        if d < dr.tools[k][2]:
+                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
+                                                               dr.tools[k][3])
+                            dx[s, i] = x[s, i] - x_prev[s, i]
+                            pushes += 1
     return pushes

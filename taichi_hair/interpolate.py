@@ -29,6 +29,7 @@ import time
 import numpy as np
 import taichi as ti
 
+from .frames import parallel_transport
 from .runtime import ensure_init, precision
 from .validation import is_real
 from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
@@ -45,16 +46,6 @@ Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # `float` resolves when the ke
 
 
 # ---------------------------------------------------------------- per-frame kernels
-
-@ti.func
-def _transport(a, b, x):
-    """Parallel transport of x from unit tangent a to unit tangent b (rotation about a x b)."""
-    axb, c = a.cross(b), a.dot(b)
-    out = x
-    if c > -1.0 + 1e-12:  # antiparallel tangents: no unique rotation, keep x
-        out = c * x + axb.cross(x) + axb.dot(x) * axb / (1.0 + c)
-    return out
-
 
 @ti.func
 def _rotate(head: ti.template(), v):
@@ -80,7 +71,7 @@ def _guide_frames(x: Vec3s2, normal: Vec3s1, u_rest: Vec3s1, head: Vec3s1, t_out
             t = t_prev
             if e.norm() > 1e-12:  # a zero-length edge keeps the previous tangent
                 t = e.normalized()
-            u = _transport(t_prev, t, u)
+            u = parallel_transport(u, t_prev, t)
             u = (u - u.dot(t) * t).normalized()  # round-off drift off the normal plane
             t_out[g, j], u_out[g, j] = t, u
             t_prev = t

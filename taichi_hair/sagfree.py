@@ -67,6 +67,7 @@ import warnings
 
 import numpy as np
 
+from . import arrays
 from .groom import Groom
 from .materials import Material, per_strand_materials, stiffness_table
 from .pins import ROOT_MODES
@@ -230,7 +231,7 @@ def sag_free(groom: Groom, material, gravity=(0.0, 0.0, -9.81), head: Head | Non
     g = _check_inputs(groom, material, gravity, head, twist, regularization, max_turning_deg,
                       max_relative_residual, contact_tolerance, iterations, root)
     chosen = _strand_mask(strands, groom.n_strands)
-    sim = _probe_simulator(groom, material, twist, root)
+    sim = _probe_rods(groom, material, twist, root)
     layout = _Layout.of(sim.model)
     twist0 = sim.model.rest_twist.to_numpy().astype(np.float64)
     wbar0 = sim.model.rest_kappa.to_numpy().astype(np.float64)
@@ -400,12 +401,11 @@ def _is_number(value):
 
 # ---- the linear map wbar -> elastic force -----------------------------------------------------
 
-def _probe_simulator(groom, material, twist, root):
-    """A simulator of the groom used only for its kernels (no gravity: forces are elastic)."""
-    from .simulator import Simulator
-    with warnings.catch_warnings():  # its time step is never used
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return Simulator(groom, material, gravity=(0.0, 0.0, 0.0), twist=twist, root=root)
+def _probe_rods(groom, material, twist, root):
+    """The groom's rods (no stepping, no gravity: forces are elastic), built for this solve: its
+    rest curvature is the solve's unknown, set each round (_set_rest_curvature)."""
+    from .system import RodSystem
+    return RodSystem(groom, material, twist=twist, root=root)
 
 
 def _set_rest_curvature(sim, wbar):
@@ -422,20 +422,17 @@ def _linearise(sim, layout):
     """The balance's derivatives at the simulator's current rest curvature and angles: force
     [S, N, 3] N and jac_w [S, N, 3, N, 4] = dforce / dwbar (exact: the force is affine in wbar;
     one launch per (bending node, component), all strands at once)."""
-    kappa = sim.model.rest_kappa
-    current = kappa.to_numpy()
     s_count, n_max = sim.groom.n_strands, sim.groom.max_nodes
     out = {"force": sim.elastic_forces(), "jac_w": np.zeros((s_count, n_max, 3, n_max, 4))}
-    probe = np.zeros_like(current)
-    kappa.from_numpy(probe)
-    f0 = sim.elastic_forces()
+    probe = np.zeros((s_count, n_max, 4))
+    kappa = arrays.vectors(4, (s_count, n_max), probe)  # the rest curvature probed, not the model's
+    f0 = sim.elastic_forces(rest_kappa=kappa)
     for i in range(n_max)[layout.bending_nodes(n_max)]:
         for c in range(4):
             probe[:, i, c] = 1.0
-            kappa.from_numpy(probe)
-            out["jac_w"][:, :, :, i, c] = sim.elastic_forces() - f0
+            kappa.from_numpy(probe.astype(arrays.np_float()))
+            out["jac_w"][:, :, :, i, c] = sim.elastic_forces(rest_kappa=kappa) - f0
             probe[:, i, c] = 0.0
-    kappa.from_numpy(current)
     return out
 
 

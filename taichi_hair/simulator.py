@@ -1,7 +1,6 @@
-"""The Simulator: a groom and its material turned into Taichi state, stepped by Kmoch's loop.
-
-It holds the arrays and the options; the physics lives in the kernels of frames.py, rod.py,
-twist.py and step.py. Units: SI throughout.
+"""The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (step.py) under a control
+(head, air, colliders, touch, pins), with the stability bound and its substeps, rollback on
+blow-up, and checkpoints. Units: SI throughout.
 """
 
 import math
@@ -10,13 +9,10 @@ import warnings
 import numpy as np
 
 from . import arrays
-from .frames import update_frames, update_material_frames
-from .groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
+from .groom import Groom
 from .progress import ProgressBar
-from .rod import strand_elastic_energy, theta_gradient
 from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
-from .state import build
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .collisions import root_keeps_collider
 from .scene import _host_distance
@@ -25,11 +21,11 @@ from .forces import Grab, Hand, Wind
 from .interaction import HairInteraction, InteractionGrid
 from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
+from .system import RodSystem
 from .twist import TWIST_MODES
 from .validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   place_roots, project_constraints, run_twist_update, strand_mechanical_energy,
-                   total_elastic_forces)
+                   place_roots, project_once, strand_mechanical_energy)
 
 COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
@@ -102,11 +98,10 @@ class Simulator:
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
         self.twist_iterations = twist_iterations
-        self.model, self.state = build(groom, material, clamp=root == "clamped")
-        if root == "edge":  # the first edge rides on the head: node 1 is held too
-            inv_mass = self.model.inv_mass.to_numpy()
-            inv_mass[:, 1] = 0.0
-            self.model.inv_mass.from_numpy(inv_mass)
+        twist_tol = None if twist_tol is None else _positive("twist_tol", twist_tol, "")
+        self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
+                              twist_iterations=twist_iterations)
+        self.model, self.state = self.rods.model, self.rods.state
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
@@ -133,8 +128,10 @@ class Simulator:
             projection_tol=_positive("projection_tol", default_projection_tol(groom) if projection_tol is None else projection_tol,
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
-            twist_tol=_positive("twist_tol", _default_twist_tol() if twist_tol is None else twist_tol, ""),
+            twist_tol=self.rods.twist_tol,
             twist_iterations=twist_iterations, root=root)
+        self._bundles = self.rods.bundles
+        self._bundles.bind(self.control)
         self.time = 0.0
         self.steps_taken = 0
         self._snapshot = None
@@ -247,7 +244,7 @@ class Simulator:
         """Move groomed nodes that start inside a collider's margin out of it before the first
         step, so the correction does not turn into a velocity kick (the push over one substep
         would read as metres per second)."""
-        st, md, c = self.state, self.model, self.control
+        st, c = self.state, self.control
         load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
         load_tools(c, self.touch, np.full(2, self.time))
         st.x_prev.copy_from(st.x)
@@ -255,11 +252,7 @@ class Simulator:
         # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
         for _ in range(INITIAL_PROJECTION_ROUNDS):
             st.residuals.fill(0.0)
-            project_constraints(self.plan.projection_tol, self.plan.projection_iterations,
-                                self.plan.n_analytic, True, False, self.plan.mesh, self.plan.touch,
-                                md.node_count, md.inv_mass, md.rest_length, c.head, c.kinds,
-                                c.geometry, c.params, c.sdf, c.sdf_meta, c.tools, c.tool_points,
-                                st.x, st.x_prev, st.dx, *st.scratch_edge, st.counters, st.residuals)
+            project_once(self._bundles, self.plan, c)
             residual = st.residuals.to_numpy()[:, 0]
             if residual.max() <= self.plan.projection_tol:
                 break
@@ -346,10 +339,10 @@ class Simulator:
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total)
                     if self._pins.active else None)
             if staged:
-                kmoch_step(self.model, self.state, self.control, self.plan, h, timers,
+                kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
                            self.interaction.stage if self.interaction is not None else None, pins)
             else:
-                advance(self.model, self.state, self.control, self.plan, h, count, moving, pins)
+                advance(self._bundles, self.plan, self.control, h, count, moving, pins)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
@@ -518,107 +511,65 @@ class Simulator:
         return report
 
     def _reset_counters(self):
-        self.state.counters.fill(0)
-        self.state.residuals.fill(0.0)
+        self.rods.reset_counters()
 
-    # ---- state in and out -------------------------------------------------------------
+    # ---- the rods (system.RodSystem): state in and out, frames, twist, elastic energy --------
     @property
     def n_strands(self) -> int:
         return self.groom.n_strands
 
     def positions(self) -> np.ndarray:
         """Node positions [S, N, 3] in metres (padding nodes repeat each strand's last node)."""
-        return self.state.x.to_numpy().astype(np.float64)
+        return self.rods.positions()
 
     def velocities(self) -> np.ndarray:
         """Node velocities [S, N, 3] in m/s."""
-        return self.state.v.to_numpy().astype(np.float64)
+        return self.rods.velocities()
 
     def set_positions(self, x) -> None:
-        """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
-        are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
-        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
-        x = self._checked_nodes("positions", x)
-        _check_strand_geometry(x, self.groom.node_counts)
-        self.state.x.from_numpy(x)
-        self.update_frames()
+        """Set node positions [S, N, 3] (metres) and recompute the frames (RodSystem.set_positions)."""
+        self.rods.set_positions(x)
 
     def set_velocities(self, v) -> None:
         """Set node velocities [S, N, 3] in m/s."""
-        self.state.v.from_numpy(self._checked_nodes("velocities", v))
-
-    def _checked_nodes(self, name, values):
-        values = np.asarray(values, dtype=np.float64)
-        expected = (self.groom.n_strands, self.groom.max_nodes, 3)
-        if values.shape != expected:
-            raise ValueError(f"{name} must have shape {list(expected)}, got {list(values.shape)}")
-        if not np.all(np.isfinite(values)):
-            s, i = np.argwhere(~np.isfinite(values))[0][:2]
-            raise ValueError(f"{name} must be finite; strand {s} node {i} is {values[s, i]}")
-        return values.astype(arrays.np_float())
+        self.rods.set_velocities(v)
 
     def material_angles(self) -> np.ndarray:
         """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
-        return self.state.theta.to_numpy().astype(np.float64)
+        return self.rods.material_angles()
 
     def set_material_angles(self, theta) -> None:
-        theta = np.asarray(theta, dtype=np.float64)
-        if theta.shape != (self.groom.n_strands, self.groom.max_nodes - 1) or not np.all(np.isfinite(theta)):
-            raise ValueError(f"material angles must be finite with shape "
-                             f"[{self.groom.n_strands}, {self.groom.max_nodes - 1}], got {list(theta.shape)}")
-        self.state.theta.from_numpy(theta.astype(arrays.np_float()))
-        st = self.state
-        update_material_frames(self.model.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
+        self.rods.set_material_angles(theta)
 
     def frames(self) -> dict:
-        """Numpy copies [S, N-1, 3] of the Bishop frame (u, v), the material frame (m1, m2),
-        the unit tangents t, and the curvature binormals kb [S, N, 3]."""
-        e = np.diff(self.positions(), axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = e / np.linalg.norm(e, axis=2, keepdims=True)
-        st = self.state
-        return {"u": st.bishop_u.to_numpy(), "v": st.bishop_v.to_numpy(), "m1": st.m1.to_numpy(),
-                "m2": st.m2.to_numpy(), "t": t, "kb": st.kb.to_numpy()}
+        """Bishop and material frames, tangents and curvature binormals (RodSystem.frames)."""
+        return self.rods.frames()
 
-    # ---- stages -----------------------------------------------------------------------
     def update_frames(self) -> None:
         """Bishop and material frames and curvature binormals from the current positions."""
-        st, md = self.state, self.model
-        update_frames(md.clamp, st.x, md.node_count, st.root_t, st.root_u, st.theta, st.bishop_u,
-                      st.bishop_v, st.m1, st.m2, st.kb)
+        self.rods.update_frames()
 
     def update_twist(self) -> dict:
-        """Solve the free edges' material angles with the chosen twist mode. Returns
-        {"iterations", "residual", "cap_hits", "stalls"}: the quasistatic solve's max over strands
-        (the scaled residual max |dE/dtheta| l / max(EI1, GJ)) and how many strands ended at the
-        iteration cap or stalled above tolerance at the rounding floor; "kmoch" reports its exact
-        solve of round strands, 1 iteration and residual NaN when every strand is elliptic;
-        "none": 0 iterations, residual NaN."""
-        self._reset_counters()
-        run_twist_update(self.model, self.state, self.plan)
-        counters = self.state.counters.to_numpy()
-        exact = [m.ellipticity == 1.0 for m in self.model.materials]
-        report = {"iterations": int(counters[:, COUNTERS["twist_iterations"]].max()),
-                  "residual": float(self.state.residuals.to_numpy()[:, 1].max()),
-                  "cap_hits": int(counters[:, COUNTERS["twist_cap_hits"]].sum()),
-                  "stalls": int(counters[:, COUNTERS["twist_stalls"]].sum())}
-        if self.twist == "none" or (self.twist == "kmoch" and not any(exact)):
-            report.update(iterations=int(self.twist == "kmoch"), residual=float("nan"))
-        return report
+        """Solve the free edges' material angles with the chosen twist mode (RodSystem.update_twist)."""
+        return self.rods.update_twist()
 
-    # ---- energies and forces ----------------------------------------------------------
     def strand_elastic_energy(self) -> np.ndarray:
         """Elastic energy of each strand [S] in joules, material angles as they are."""
-        st, md = self.state, self.model
-        strand_elastic_energy(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
-                              st.root_u, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
-                              st.strand_scalar)
-        return st.strand_scalar.to_numpy().astype(np.float64)
+        return self.rods.strand_elastic_energy()
 
     def elastic_energy(self) -> float:
         """Bending + twist energy of all strands in joules, material angles held as they are."""
-        return float(self.strand_elastic_energy().sum())
+        return self.rods.elastic_energy()
 
+    def elastic_forces(self) -> np.ndarray:
+        """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces)."""
+        return self.rods.elastic_forces()
+
+    def theta_gradient(self) -> np.ndarray:
+        """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
+        return self.rods.theta_gradient()
+
+    # ---- energies of the motion ---------------------------------------------------------
     def _mechanical(self):
         """Per-strand kinetic and gravitational energy [S], [S] in joules."""
         st, md = self.state, self.model
@@ -639,45 +590,6 @@ class Simulator:
         k, p = self._mechanical()
         return float(k.sum() + p.sum()) + self.elastic_energy()
 
-    def elastic_forces(self) -> np.ndarray:
-        """Elastic forces [S, N, 3] in newtons: minus the gradient of `elastic_energy` with the
-        material angles held fixed (holonomy term included). At twist equilibrium (after
-        `update_twist` with "quasistatic") this is also the total force. With twist="kmoch" the
-        angles of elliptic strands follow the centreline by Kmoch's rule, and this is minus the
-        total derivative of E(x, theta_kmoch(x)) (after `update_twist`)."""
-        total_elastic_forces(self.model, self.state, self.twist)
-        return self.state.force.to_numpy().astype(np.float64)
-
-    def theta_gradient(self) -> np.ndarray:
-        """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
-        st, md = self.state, self.model
-        out = st.scratch_edge[0]
-        theta_gradient(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
-                       md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
-        return out.to_numpy().astype(np.float64)
-
-
-def _check_strand_geometry(x, node_counts):
-    """ValueError naming the first strand and node of x [S, N, 3] m whose segment is shorter than
-    MIN_SEGMENT_LENGTH or whose turn exceeds MAX_TURNING_ANGLE_DEG (the Groom's own rules: the
-    curvature binormal is undefined there, so the energy would be NaN). Vectorised over strands."""
-    x = np.asarray(x, dtype=np.float64)
-    edges = np.diff(x, axis=1)
-    lengths = np.linalg.norm(edges, axis=2)
-    real = np.arange(x.shape[1] - 1)[None, :] < (np.asarray(node_counts)[:, None] - 1)
-    short = np.argwhere(real & (lengths < MIN_SEGMENT_LENGTH))
-    if len(short):
-        s, i = short[0]
-        raise ValueError(f"positions: strand {s} segment {i} (nodes {i}-{i + 1}) has length {lengths[s, i]:.3g} m; "
-                         f"segments must be >= {MIN_SEGMENT_LENGTH:g} m long (coincident nodes)")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_turn = np.sum(edges[:, 1:] * edges[:, :-1], axis=2) / (lengths[:, 1:] * lengths[:, :-1])
-    folded = np.argwhere(real[:, 1:] & (cos_turn < math.cos(math.radians(MAX_TURNING_ANGLE_DEG))))
-    if len(folded):
-        s, i = folded[0]
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_turn[s, i]))))
-        raise ValueError(f"positions: strand {s} turns by {angle:.1f} degrees at node {i + 1}; turning angles "
-                         f"must be <= {MAX_TURNING_ANGLE_DEG:g} degrees (the strand folds back on itself)")
 
 
 def default_projection_tol(groom: Groom) -> float:
@@ -702,10 +614,6 @@ def _max_air_speed(wind) -> float:
     if isinstance(wind, Wind):
         return (float(np.linalg.norm(wind.velocity)) * (1.0 + wind.gust_amplitude) + 3.0 * wind.turbulence)
     return float(np.linalg.norm(wind))
-
-
-def _default_twist_tol():
-    return 1e-10 if precision() == "float64" else 1e-5
 
 
 def _pose(rotation, translation):

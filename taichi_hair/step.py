@@ -14,7 +14,7 @@ after step k-1; a static head passes [prev, now] and uses now for every step aft
 """
 
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import taichi as ti
 
@@ -78,45 +78,151 @@ class StepPlan:
         return self.n_analytic > 0 or self.mesh or self.touch
 
 
-# ---- stages, one strand each ----------------------------------------------------------------
+# ---- argument bundles --------------------------------------------------------------------------
+# Every step kernel takes the same five bundles (Taichi argpacks of ndarrays) instead of loose
+# arrays: what never changes in a run (ModelArgs), what each step changes (StateArgs), what
+# drives it (DriveArgs: head poses, loads, wind tables, tools, user forces, pins), what it
+# collides with (ContactArgs), and the launch's scalars (StepScalars). A bundle is built once
+# per simulator (StepBundles): building one costs about what a launch does, passing a built
+# one costs the same as passing its arrays one by one (measured in docs/architecture.md).
+
+ModelArgs = ti.types.argpack(
+    node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
+    stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
+StateArgs = ti.types.argpack(
+    x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
+    bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2)
+DriveArgs = ti.types.argpack(
+    head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
+    tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
+ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
+StepScalars = ti.types.struct(
+    h=float, t0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
+    twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
+
+
+@dataclass(frozen=True)
+class StageFlags:
+    """The compile-time switches of the step kernels (passed as ti.template, so each distinct
+    value compiles its own kernel once per process): a stage whose flag is off is neither
+    compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
+    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held."""
+
+    external: bool
+    wind_field: bool
+    twist_mode: int
+    user: bool
+    moving_head: bool
+    contacts: bool
+    mesh: bool
+    touch: bool
+    pins: bool
+    root_mode: int
+
+
+def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False, pins: bool = False,
+                **overrides) -> StageFlags:
+    """The flags of `plan` for one launch."""
+    flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
+                 user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
+                 touch=plan.touch, pins=pins, root_mode=plan.root_mode)
+    flags.update(overrides)
+    return StageFlags(**flags)
+
+
+class StepBundles:
+    """One simulator's kernel bundles, built once: model and state from the rods, contacts and
+    drive from the control once `bind` gives it; the drive bundle is rebuilt only when user
+    forces or pins first get their arrays."""
+
+    def __init__(self, model, state):
+        md, st = model, state
+        self.model = ModelArgs(node_count=md.node_count, mass=md.mass, inv_mass=md.inv_mass,
+                               rest_length=md.rest_length, voronoi=md.voronoi, stiffness=md.stiffness,
+                               rest_kappa=md.rest_kappa, rest_twist=md.rest_twist, root_frame=md.root_frame)
+        diag, upper, rhs = st.scratch_edge
+        self.state = StateArgs(x=st.x, v=st.v, x_prev=st.x_prev, dx=st.dx, force=st.force, theta=st.theta,
+                               bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
+                               root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
+                               counters=st.counters, residuals=st.residuals)
+        self._state, self._control, self.contacts = st, None, None
+        self._drive_key, self._drive = None, None
+
+    def bind(self, control) -> None:
+        """Take the control arrays (control.Control) that drive the steps."""
+        c = control
+        self._control = c
+        self.contacts = ContactArgs(kinds=c.kinds, geometry=c.geometry, params=c.params, sdf=c.sdf,
+                                    sdf_meta=c.sdf_meta)
+        self._drive_key = None
+
+    def drive(self, pins=None):
+        """The drive bundle; pins: None or the (mode, start, end) arrays of the pin table (an
+        unused flag's arrays are placeholders of the right type)."""
+        st, c = self._state, self._control
+        key = (id(c.user_force), None if pins is None else tuple(id(a) for a in pins))
+        if key != self._drive_key:
+            mode, start, end = pins if pins is not None else (st.counters, st.dx, st.dx)
+            self._drive = DriveArgs(head=c.head, loads=c.loads, gusts=c.gusts, modes=c.modes,
+                                    user_force=c.user_force if c.user_force is not None else st.force,
+                                    tools=c.tools, tool_points=c.tool_points, pin_mode=mode,
+                                    pin_start=start, pin_end=end)
+            self._drive_key = key
+        return self._drive
+
+
+def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)):
+    """The launch's scalars: step h [s] from control.time; pins pin_fraction = (f0, df)."""
+    return StepScalars(h=h, t0=control.time, drag=control.drag, max_speed=control.max_speed,
+                       projection_tol=plan.projection_tol, projection_iterations=plan.projection_iterations,
+                       twist_tol=plan.twist_tol, twist_iterations=plan.twist_iterations,
+                       n_analytic=plan.n_analytic, pin_f0=pin_fraction[0], pin_df=pin_fraction[1])
+
+
+# ---- per-strand helpers ------------------------------------------------------------------------
 
 @ti.func
-def strand_external_forces(s, t, drag, wind_field: ti.template(), touch: ti.template(),
-                           node_count: ti.template(), mass: ti.template(), voronoi: ti.template(),
-                           x: ti.template(), v: ti.template(), loads: ti.template(),
-                           gusts: ti.template(), modes: ti.template(), tools: ti.template(),
-                           tool_points: ti.template(), now, force: ti.template()):
+def head_poses(k, fl: ti.template()):
+    """(now, prev): the head pose indices ending and starting step k of a launch (module doc)."""
+    now = 1
+    prev = 0
+    if ti.static(fl.moving_head):
+        now = k + 1
+        prev = k
+    elif k > 0:
+        prev = 1
+    return now, prev
+
+
+@ti.func
+def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
+                           dr: ti.template()):
     """force += m g - drag l_i (v - u_air) + grab springs; loads = (gravity [m/s^2], mean wind
-    [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field."""
-    for i in range(node_count[s]):
-        air = loads[1]
-        if ti.static(wind_field):
-            air = air_velocity(loads[1], gusts, modes, t, x[s, i])
-        f = mass[s, i] * loads[0] - drag * voronoi[s, i] * (v[s, i] - air)
-        if ti.static(touch):
-            f += grab_force(tools, tool_points, now, x[s, i])
-        force[s, i] += f
+    [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field;
+    grabs at the tools' positions at the start of step k."""
+    t = sc.t0 + k * sc.h
+    for i in range(md.node_count[s]):
+        air = dr.loads[1]
+        if ti.static(fl.wind_field):
+            air = air_velocity(dr.loads[1], dr.gusts, dr.modes, t, st.x[s, i])
+        f = md.mass[s, i] * dr.loads[0] - sc.drag * md.voronoi[s, i] * (st.v[s, i] - air)
+        if ti.static(fl.touch):
+            f += grab_force(dr.tools, dr.tool_points, k, st.x[s, i])
+        st.force[s, i] += f
 
 
 @ti.func
-def strand_add_forces(s, node_count: ti.template(), extra: ti.template(), force: ti.template()):
-    for i in range(node_count[s]):
-        force[s, i] += extra[s, i]
-
-
-@ti.func
-def strand_symplectic_euler(s, h, node_count: ti.template(), inv_mass: ti.template(),
-                            force: ti.template(), v: ti.template(), x: ti.template(),
-                            x_prev: ti.template(), dx: ti.template()):
+def strand_symplectic_euler(s, h, md: ti.template(), st: ti.template()):
     """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0); dx = the step's
     displacement so far (h v, 0 on held nodes), which the projection and contacts add to."""
-    for i in range(node_count[s]):
-        x_prev[s, i] = x[s, i]
-        dx[s, i] = vec3(0.0)
-        if inv_mass[s, i] > 0.0:
-            v[s, i] += h * inv_mass[s, i] * force[s, i]
-            dx[s, i] = h * v[s, i]
-            x[s, i] += dx[s, i]
+    for i in range(md.node_count[s]):
+        st.x_prev[s, i] = st.x[s, i]
+        st.dx[s, i] = vec3(0.0)
+        if md.inv_mass[s, i] > 0.0:
+            st.v[s, i] += h * md.inv_mass[s, i] * st.force[s, i]
+            st.dx[s, i] = h * st.v[s, i]
+            st.x[s, i] += st.dx[s, i]
 
 
 @ti.func
@@ -138,12 +244,11 @@ def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: t
 
 
 @ti.func
-def solve_inextensibility(s, n, inv_mass: ti.template(), x: ti.template(), dx: ti.template(),
-                          diag: ti.template(), upper: ti.template(), rhs: ti.template()):
+def solve_inextensibility(s, n, md: ti.template(), st: ti.template()):
     """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
     in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda; the correction is added
     to the step's displacement dx too (see strand_velocities)."""
-    thomas_solve(s, 0, n - 2, diag, upper, rhs)
+    thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
     # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
     # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
     e_before = vec3(0.0)
@@ -151,205 +256,214 @@ def solve_inextensibility(s, n, inv_mass: ti.template(), x: ti.template(), dx: t
         move = vec3(0.0)
         e = vec3(0.0)
         if i + 1 < n:
-            e = x[s, i + 1] - x[s, i]
-            move += rhs[s, i] * e
+            e = st.x[s, i + 1] - st.x[s, i]
+            move += st.rhs[s, i] * e
         if i > 0:
-            move -= rhs[s, i - 1] * e_before
-        move *= 2.0 * inv_mass[s, i]
-        x[s, i] += move
-        dx[s, i] += move
+            move -= st.rhs[s, i - 1] * e_before
+        move *= 2.0 * md.inv_mass[s, i]
+        st.x[s, i] += move
+        st.dx[s, i] += move
         e_before = e
 
 
 @ti.func
-def strand_project(s, tol, max_iterations, pins: ti.template(), node_count: ti.template(),
-                   inv_mass: ti.template(), rest_length: ti.template(), x: ti.template(),
-                   dx: ti.template(), diag: ti.template(), upper: ti.template(), rhs: ti.template(),
-                   contacts: ti.template(),
-                   x_prev: ti.template(), head: ti.template(), now, prev, n_analytic,
-                   kinds: ti.template(), geometry: ti.template(), params: ti.template(),
-                   use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
-                   use_touch: ti.template(), tools: ti.template(), tool_points: ti.template(),
-                   tool_now, tool_prev):
+def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
+                   dr: ti.template(), co: ti.template()):
     """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
     edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
-    tol after contacts, max_iterations, or a stall (an iteration removing less than 10 % of a
-    residual already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow
-    progress is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root,
-    pins) have infinite mass (inv_mass 0); an edge with both nodes held (a
+    projection_tol after contacts, projection_iterations, or a stall (an iteration removing
+    less than 10 % of a residual already below STALL_BELOW: the precision's rounding floor; far
+    from satisfied, slow progress is the nonlinear start of Gauss-Newton and it keeps going).
+    Held nodes (the root, pins) have infinite mass (inv_mass 0); an edge with both nodes held (a
     clip) is prescribed: its row is the identity with a zero right-hand side, outside the
     residual; with pins the diagonal is damped (HELD_DAMPING). Returns (iterations, final
     residual)."""
-    n = node_count[s]
+    n = md.node_count[s]
+    now, prev = head_poses(k, fl)
     it = 0
     res = 0.0
     previous = 0.0
     while True:
-        if ti.static(contacts):
-            strand_collide(s, node_count, inv_mass, x, x_prev, dx, head, now, prev, n_analytic, kinds,
-                           geometry, params, use_mesh, sdf, sdf_meta, use_touch, tools, tool_points,
-                           tool_now, tool_prev)
+        if ti.static(fl.contacts):
+            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
         res = 0.0
         for j in range(n - 1):
-            e = x[s, j + 1] - x[s, j]
-            w = inv_mass[s, j] + inv_mass[s, j + 1]
-            rhs[s, j] = 0.0
-            diag[s, j] = 1.0
+            e = st.x[s, j + 1] - st.x[s, j]
+            w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
+            st.rhs[s, j] = 0.0
+            st.diag[s, j] = 1.0
             if w > 0.0:
-                l2 = rest_length[s, j] * rest_length[s, j]
+                l2 = md.rest_length[s, j] * md.rest_length[s, j]
                 c = e.dot(e) - l2
                 res = ti.max(res, ti.abs(c) / l2)
-                rhs[s, j] = c
-                diag[s, j] = 4.0 * e.dot(e) * w
-                if ti.static(pins):
-                    diag[s, j] *= 1.0 + HELD_DAMPING
+                st.rhs[s, j] = c
+                st.diag[s, j] = 4.0 * e.dot(e) * w
+                if ti.static(fl.pins):
+                    st.diag[s, j] *= 1.0 + HELD_DAMPING
             if j + 1 < n - 1:
-                upper[s, j] = -4.0 * inv_mass[s, j + 1] * e.dot(x[s, j + 2] - x[s, j + 1])
-        if res < tol or it >= max_iterations or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous):
+                st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * e.dot(st.x[s, j + 2] - st.x[s, j + 1])
+        if (res < sc.projection_tol or it >= sc.projection_iterations
+                or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous)):
             break
-        solve_inextensibility(s, n, inv_mass, x, dx, diag, upper, rhs)
+        solve_inextensibility(s, n, md, st)
         it += 1
     return it, res
 
 
 @ti.func
-def strand_velocities(s, inv_h, max_speed, node_count: ti.template(), inv_mass: ti.template(),
-                      x: ti.template(), x_prev: ti.template(), dx: ti.template(), v: ti.template()):
+def strand_velocities(s, sc, md: ti.template(), st: ti.template()):
     """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx:
     x itself is rounded to its coordinates' precision at every update, and in float32 with small
     substeps (eps |x| / h ~ mm/s at 1 mm segments) that rounding, read back as velocity, would
     heat the hair (docs/model.md, "Velocities"). Held nodes take the difference of positions.
     Returns 1 if a node is non-finite or faster than max_speed, else 0."""
     bad = 0
-    for i in range(node_count[s]):
-        vel = dx[s, i] * inv_h
-        if inv_mass[s, i] == 0.0:
-            vel = (x[s, i] - x_prev[s, i]) * inv_h
-        v[s, i] = vel
+    inv_h = 1.0 / sc.h
+    for i in range(md.node_count[s]):
+        vel = st.dx[s, i] * inv_h
+        if md.inv_mass[s, i] == 0.0:
+            vel = (st.x[s, i] - st.x_prev[s, i]) * inv_h
+        st.v[s, i] = vel
         # written so that NaN, which fails every comparison, counts as bad
-        if not (vel.dot(vel) <= max_speed * max_speed):
+        if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):
             bad = 1
     return bad
 
 
 @ti.func
-def record_projection(s, counters: ti.template(), residuals: ti.template(), it, res, tol, max_iterations):
+def record_projection(s, st: ti.template(), it, res, tol, max_iterations):
     """Running maxima of iterations and final residual; counts of steps that ended above tol
     at the iteration cap, or stalled at the rounding floor."""
-    counters[s, PROJ_IT] = ti.max(counters[s, PROJ_IT], it)
-    residuals[s, 0] = ti.max(residuals[s, 0], res)
+    st.counters[s, PROJ_IT] = ti.max(st.counters[s, PROJ_IT], it)
+    st.residuals[s, 0] = ti.max(st.residuals[s, 0], res)
     if res >= tol:
         if it >= max_iterations:
-            counters[s, PROJ_CAP] += 1
+            st.counters[s, PROJ_CAP] += 1
         else:
-            counters[s, PROJ_STALL] += 1
+            st.counters[s, PROJ_STALL] += 1
 
 
 @ti.func
-def strand_twist(s, twist_mode: ti.template(), clamp: ti.template(), tol, max_iterations,
-                 node_count: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
-                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                 rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
-                 m1: ti.template(), m2: ti.template(), a: ti.template(), b: ti.template(),
-                 c: ti.template(), counters: ti.template(), residuals: ti.template()):
+def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template()):
     """The twist update of strand s (kmoch or quasistatic); material frames follow. Kmoch's rule
     needs an elliptic section: round strands solve their twist exactly. Returns 1 if the solve
     failed (iteration cap, or stalled far from equilibrium), else 0."""
     failed = 0
-    if ti.static(twist_mode != 0):
+    clamp = ti.static(fl.root_mode == 0)
+    if ti.static(fl.twist_mode != 0):
         exact = 1
-        if ti.static(twist_mode == 1):
-            if stiffness[s].x != stiffness[s].y:
+        if ti.static(fl.twist_mode == 1):
+            if md.stiffness[s].x != md.stiffness[s].y:
                 exact = 0
         if exact:
-            it, res, how = strand_twist_quasistatic(s, clamp, node_count, bishop_u, bishop_v, kb,
-                                                    theta, rest_kappa, rest_twist, voronoi,
-                                                    stiffness, tol, max_iterations, a, b, c)
-            counters[s, TWIST_IT] = ti.max(counters[s, TWIST_IT], it)
-            residuals[s, 1] = ti.max(residuals[s, 1], res)
+            it, res, how = strand_twist_quasistatic(s, clamp, md.node_count, st.bishop_u, st.bishop_v, st.kb,
+                                                    st.theta, md.rest_kappa, md.rest_twist, md.voronoi,
+                                                    md.stiffness, sc.twist_tol, sc.twist_iterations,
+                                                    st.diag, st.upper, st.rhs)
+            st.counters[s, TWIST_IT] = ti.max(st.counters[s, TWIST_IT], it)
+            st.residuals[s, 1] = ti.max(st.residuals[s, 1], res)
             if how == CAPPED:
-                counters[s, TWIST_CAP] += 1
+                st.counters[s, TWIST_CAP] += 1
                 failed = 1
             if how == STALLED:
-                counters[s, TWIST_STALL] += 1
+                st.counters[s, TWIST_STALL] += 1
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
-        elif ti.static(twist_mode == 1):
-            counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, node_count, bishop_u, bishop_v,
-                                                            kb, theta, rest_kappa, rest_twist,
-                                                            voronoi, stiffness, a)
-        strand_material_frames(s, node_count, theta, bishop_u, bishop_v, m1, m2)
+        elif ti.static(fl.twist_mode == 1):
+            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
+                                                               st.bishop_v, st.kb, st.theta, md.rest_kappa,
+                                                               md.rest_twist, md.voronoi, md.stiffness, st.diag)
+        strand_material_frames(s, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
     return failed
 
 
-# ---- the fused driver -------------------------------------------------------------------------
+# ---- the stages of Kmoch's loop, in order ------------------------------------------------------
+# Each takes (strand, step k of the launch, flags, scalars, model, state, drive, contacts) and
+# returns 1 if the strand's step failed there. Both drivers run this one list.
+
+@ti.func
+def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                 co: ti.template()):
+    """force = elastic (with Kmoch's rule's total-derivative term) + gravity, drag, wind, grabs
+    + user forces."""
+    clamp = ti.static(fl.root_mode == 0)
+    strand_elastic_forces(s, clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
+                          md.rest_kappa, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.twist_mode == 1):
+        strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                            st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.external or fl.touch):
+        strand_external_forces(s, k, fl, sc, md, st, dr)
+    if ti.static(fl.user):
+        for i in range(md.node_count[s]):
+            st.force[s, i] += dr.user_force[s, i]
+    return 0
+
+
+@ti.func
+def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                    co: ti.template()):
+    """Symplectic Euler; the root onto the head pose ending the step; pinned nodes
+    min(1, pin_f0 + (k + 1) pin_df) of the way to their targets."""
+    now, _ = head_poses(k, fl)
+    strand_symplectic_euler(s, sc.h, md, st)
+    strand_place_root(s, dr.head, now, md.root_frame, st.x, st.root_t, st.root_u, fl.root_mode)
+    if ti.static(fl.pins):
+        strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
+                          dr.pin_start, dr.pin_end, dr.head, now, st.x)
+    return 0
+
+
+@ti.func
+def stage_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                  co: ti.template()):
+    """Inextensibility and contacts (strand_project), recorded; fails above FAILED_ABOVE."""
+    it, res = strand_project(s, k, fl, sc, md, st, dr, co)
+    record_projection(s, st, it, res, sc.projection_tol, sc.projection_iterations)
+    bad = 0
+    if not (res <= FAILED_ABOVE):
+        bad = 1
+    return bad
+
+
+@ti.func
+def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                       co: ti.template()):
+    """Velocities (with the blow-up check), Bishop frames (a pinned root's reference carried in
+    time), the twist update and the material frames."""
+    bad = strand_velocities(s, sc, md, st)
+    strand_frames(s, ti.static(fl.root_mode == 0), st.x, md.node_count, st.root_t, st.root_u, st.theta,
+                  st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb)
+    if ti.static(fl.root_mode == 1):
+        strand_carry_root_frame(s, st.x, st.root_t, st.root_u)
+    if strand_twist(s, fl, sc, md, st):
+        bad = 1
+    return bad
+
+
+STAGES = (("forces", stage_forces), ("integration", stage_integrate), ("projection", stage_project),
+          ("frames + twist", stage_frames_twist))
+STAGE_NAMES = tuple(name for name, _ in STAGES)
+_STAGE_FUNCS = tuple(func for _, func in STAGES)
+
+
+# ---- the fused driver: many steps in one launch -------------------------------------------------
 
 @ti.kernel
-def advance_strands(
-        n_steps: int, h: float, t0: float, drag: float, max_speed: float, projection_tol: float,
-        projection_iterations: int, twist_tol: float, twist_iterations: int, n_analytic: int,
-        external: ti.template(), wind_field: ti.template(), twist_mode: ti.template(),
-        user: ti.template(), moving_head: ti.template(), contacts: ti.template(),
-        use_mesh: ti.template(), touch: ti.template(), pins: ti.template(), root_mode: ti.template(),
-        pin_f0: float, pin_df: float, pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2,
-        node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, rest_length: Scalars2,
-        voronoi: Scalars2, stiffness: Vec4s1, rest_kappa: Vec4s2, rest_twist: Scalars2,
-        root_frame: Vec3s2, head: Vec3s2, loads: Vec3s1, gusts: Vec3s1, modes: Vec3s2,
-        user_force: Vec3s2, kinds: Ints1, geometry: Vec3s2, params: Vec4s1, sdf: Scalars3,
-        sdf_meta: Vec3s1, tools: Vec4s1, tool_points: Vec3s2,
-        x: Vec3s2, v: Vec3s2, x_prev: Vec3s2, dx: Vec3s2, force: Vec3s2, theta: Scalars2,
-        bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2, root_t: Vec3s1,
-        root_u: Vec3s1, scratch_a: Scalars2, scratch_b: Scalars2, scratch_c: Scalars2,
-        counters: Ints2, residuals: Scalars2):
-    """n_steps steps of h [s] from time t0 for every strand (head poses as in the module doc;
-    tool_points[k] are the tools at the start of step k, always per step; pinned nodes at
-    pin_f0 + (k + 1) pin_df of the way from pin_start to pin_end after step k). counters[s, BAD] =
-    the first step where strand s went non-finite or too fast (that strand stops there), -1 if
-    none. One thread per strand."""
-    for s in range(x.shape[0]):
-        counters[s, BAD] = -1
+def advance_strands(n_steps: int, fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
+                    dr: DriveArgs, co: ContactArgs):
+    """n_steps steps of sc.h [s] from time sc.t0 for every strand (head poses as in the module
+    doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
+    step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
         for k in range(n_steps):
-            now = 1
-            prev = 0
-            if ti.static(moving_head):
-                now = k + 1
-                prev = k
-            elif k > 0:
-                prev = 1
-            strand_elastic_forces(s, ti.static(root_mode == 0), x, node_count, kb, m1, m2, root_t, root_u,
-                                  rest_kappa, voronoi, stiffness, force)
-            if ti.static(twist_mode == 1):
-                strand_kmoch_forces(s, ti.static(root_mode == 0), x, node_count, bishop_u, bishop_v, kb,
-                                    theta, root_t, rest_kappa, rest_twist, voronoi, stiffness, force)
-            if ti.static(external or touch):
-                strand_external_forces(s, t0 + k * h, drag, wind_field, touch, node_count, mass,
-                                       voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)
-            if ti.static(user):
-                strand_add_forces(s, node_count, user_force, force)
-            strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev, dx)
-            strand_place_root(s, head, now, root_frame, x, root_t, root_u, root_mode)
-            if ti.static(pins):
-                strand_place_pins(s, ti.min(1.0, pin_f0 + (k + 1) * pin_df), node_count, pin_mode,
-                                  pin_start, pin_end, head, now, x)
-            it, res = strand_project(s, projection_tol, projection_iterations, pins, node_count,
-                                     inv_mass, rest_length, x, dx, scratch_a, scratch_b, scratch_c, contacts,
-                                     x_prev, head, now, prev, n_analytic, kinds, geometry, params,
-                                     use_mesh, sdf, sdf_meta, touch, tools, tool_points, k + 1, k)
-            record_projection(s, counters, residuals, it, res, projection_tol, projection_iterations)
-            bad = strand_velocities(s, 1.0 / h, max_speed, node_count, inv_mass, x, x_prev, dx, v)
-            if not (res <= FAILED_ABOVE):
-                bad = 1
-            strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u,
-                          bishop_v, m1, m2, kb)
-            if ti.static(root_mode == 1):
-                strand_carry_root_frame(s, x, root_t, root_u)
-            if strand_twist(s, twist_mode, ti.static(root_mode == 0), twist_tol, twist_iterations, node_count,
-                            bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi,
-                            stiffness, m1, m2, scratch_a, scratch_b, scratch_c, counters, residuals):
-                bad = 1
+            bad = 0
+            for stage in ti.static(_STAGE_FUNCS):
+                bad += stage(s, k, fl, sc, md, st, dr, co)
             if bad:
-                counters[s, BAD] = k
+                st.counters[s, BAD] = k
                 break
 
 
@@ -357,120 +471,38 @@ def compiled_variants() -> list[dict]:
     """The stage flags of every compiled instance of the fused kernel in this process: a stage
     whose flag is False in every instance was never compiled (nor run). Reads Taichi's
     template-instance table."""
-    mapper = advance_strands._primal.mapper
-    names = [a.name for a in mapper.arguments]
-    flags = ("external", "wind_field", "twist_mode", "user", "moving_head", "contacts", "use_mesh", "touch",
-             "pins", "root_mode")
-    return [{f: key[names.index(f)] for f in flags} for key in mapper.mapping]
+    keys = advance_strands._primal.mapper.mapping
+    return [asdict(next(part for part in key if isinstance(part, StageFlags))) for key in keys]
 
 
-def _common_args(model, state, control, plan: StepPlan):
-    md = model
-    return (md.node_count, md.mass, md.inv_mass, md.rest_length, md.voronoi, md.stiffness,
-            md.rest_kappa, md.rest_twist, md.root_frame)
-
-
-def _pin_args(state, pins):
-    """(pins flag, f0, df, mode, start, end): the pin arrays of `pins` = (mode, start, end, f0,
-    df), or unused placeholders when no pin is held."""
-    if pins is None:
-        return (False, 0.0, 0.0, state.counters, state.dx, state.dx)
-    mode, start, end, f0, df = pins
-    return (True, f0, df, mode, start, end)
-
-
-def advance(model, state, control, plan: StepPlan, h: float, n_steps: int, moving_head: bool,
+def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, moving_head: bool,
             pins=None) -> None:
     """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
     pins: None, or (pin_mode, pin_start, pin_end, f0, df): after step k pinned nodes are
     min(1, f0 + (k + 1) df) of the way from start to end (see pins.py)."""
-    st, c = state, control
-    user = c.user_force is not None
-    use_pins, f0, df, *pin_arrays = _pin_args(state, pins)
-    advance_strands(
-        n_steps, h, c.time, c.drag, c.max_speed, plan.projection_tol, plan.projection_iterations,
-        plan.twist_tol, plan.twist_iterations, plan.n_analytic,
-        plan.external_forces, plan.wind_field, TWIST_CODES[plan.twist], user, moving_head,
-        plan.contacts, plan.mesh, plan.touch, use_pins, plan.root_mode, f0, df, *pin_arrays,
-        *_common_args(model, state, control, plan), c.head, c.loads, c.gusts, c.modes,
-        c.user_force if user else st.force, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
-        c.tools, c.tool_points, st.x, st.v, st.x_prev, st.dx, st.force, st.theta, st.bishop_u,
-        st.bishop_v, st.m1, st.m2, st.kb, st.root_t, st.root_u, *st.scratch_edge, st.counters,
-        st.residuals)
+    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
+    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
+                        pins=pins is not None)
+    advance_strands(n_steps, flags, step_scalars(plan, control, h, fraction), bundles.model,
+                    bundles.state, bundles.drive(arrays_), bundles.contacts)
 
 
-# ---- one kernel per stage (benchmark breakdown; hair-hair interaction) ----------------------
+# ---- the staged driver: one kernel per stage (benchmark breakdown; hair-hair interaction) -------
 
 @ti.kernel
-def external_and_user_forces(t: float, drag: float, external: ti.template(), wind_field: ti.template(),
-                             touch: ti.template(), user: ti.template(), node_count: Ints1,
-                             mass: Scalars2, voronoi: Scalars2, x: Vec3s2, v: Vec3s2, loads: Vec3s1,
-                             gusts: Vec3s1, modes: Vec3s2, tools: Vec4s1, tool_points: Vec3s2,
-                             user_force: Vec3s2, force: Vec3s2):
-    for s in range(force.shape[0]):
-        if ti.static(external or touch):
-            strand_external_forces(s, t, drag, wind_field, touch, node_count, mass, voronoi, x, v,
-                                   loads, gusts, modes, tools, tool_points, 0, force)
-        if ti.static(user):
-            strand_add_forces(s, node_count, user_force, force)
+def run_stage(stage: ti.template(), fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
+              dr: DriveArgs, co: ContactArgs):
+    """One stage of a one-step launch for every strand; counters[s, BAD] = 0 where it failed.
+    One thread per strand."""
+    for s in range(st.x.shape[0]):
+        if stage(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
 
 
 @ti.kernel
-def integrate(h: float, pins: ti.template(), root_mode: ti.template(), pin_f0: float, pin_df: float,
-              pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2, node_count: Ints1,
-              inv_mass: Scalars2, force: Vec3s2, head: Vec3s2, root_frame: Vec3s2, v: Vec3s2, x: Vec3s2,
-              x_prev: Vec3s2, dx: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
-    """Symplectic Euler, then the root nodes onto head pose 1 and pinned nodes pin_f0 + pin_df
-    of the way to their end targets. One thread per strand."""
-    for s in range(x.shape[0]):
-        strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev, dx)
-        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, root_mode)
-        if ti.static(pins):
-            strand_place_pins(s, ti.min(1.0, pin_f0 + pin_df), node_count, pin_mode, pin_start,
-                              pin_end, head, 1, x)
-
-
-@ti.kernel
-def project_constraints(tol: float, max_iterations: int, n_analytic: int, contacts: ti.template(),
-                        pins: ti.template(), use_mesh: ti.template(), touch: ti.template(), node_count: Ints1,
-                        inv_mass: Scalars2, rest_length: Scalars2, head: Vec3s2, kinds: Ints1,
-                        geometry: Vec3s2, params: Vec4s1, sdf: Scalars3, sdf_meta: Vec3s1,
-                        tools: Vec4s1, tool_points: Vec3s2, x: Vec3s2, x_prev: Vec3s2, dx: Vec3s2,
-                        diag: Scalars2, upper: Scalars2, rhs: Scalars2, counters: Ints2,
-                        residuals: Scalars2):
-    """strand_project for every strand (head pose 0 -> 1), recorded; counters[s, BAD] = 0 where
-    the projection failed (residual above FAILED_ABOVE), else -1. One thread per strand."""
-    for s in range(x.shape[0]):
-        it, res = strand_project(s, tol, max_iterations, pins, node_count, inv_mass, rest_length, x, dx,
-                                 diag, upper, rhs, contacts, x_prev, head, 1, 0, n_analytic, kinds,
-                                 geometry, params, use_mesh, sdf, sdf_meta, touch, tools, tool_points, 1, 0)
-        record_projection(s, counters, residuals, it, res, tol, max_iterations)
+def clear_bad(counters: Ints2):
+    for s in range(counters.shape[0]):
         counters[s, BAD] = -1
-        if not (res <= FAILED_ABOVE):
-            counters[s, BAD] = 0
-
-
-@ti.kernel
-def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, twist_iterations: int,
-                            twist_mode: ti.template(), root_mode: ti.template(), node_count: Ints1,
-                            inv_mass: Scalars2, x: Vec3s2, x_prev: Vec3s2, dx: Vec3s2,
-                            v: Vec3s2, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
-                            bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2,
-                            rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2,
-                            stiffness: Vec4s1, a: Scalars2, b: Scalars2, c: Scalars2,
-                            counters: Ints2, residuals: Scalars2):
-    """Velocities from positions (with the blow-up check), frames and the twist update."""
-    for s in range(x.shape[0]):
-        if strand_velocities(s, inv_h, max_speed, node_count, inv_mass, x, x_prev, dx, v):
-            counters[s, BAD] = 0
-        strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u, bishop_v,
-                      m1, m2, kb)
-        if ti.static(root_mode == 1):
-            strand_carry_root_frame(s, x, root_t, root_u)
-        if strand_twist(s, twist_mode, ti.static(root_mode == 0), twist_tol, twist_iterations, node_count,
-                        bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness,
-                        m1, m2, a, b, c, counters, residuals):
-            counters[s, BAD] = 0
 
 
 @ti.kernel
@@ -480,77 +512,69 @@ def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, roo
         strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
 
 
-def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, interaction=None,
-               pins=None) -> None:
+def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: float, timers=None,
+               interaction=None, pins=None) -> None:
     """One step of h with one kernel per stage (head poses [prev, now] in control.head; pins as
     in `advance`, for this one step).
     `timers(name)` gives a context manager timing each stage (it must synchronise);
-    `interaction(model, state, control, h)` adds hair-hair forces and velocity smoothing."""
-    md, st, c = model, state, control
-    stage = timers if timers is not None else (lambda name: nullcontext())
-    user = c.user_force is not None
-    with stage("forces"):
-        total_elastic_forces(model, state, plan.twist)
-        if plan.external_forces or plan.touch or user:
-            external_and_user_forces(c.time, c.drag, plan.external_forces, plan.wind_field, plan.touch,
-                                     user, md.node_count, md.mass, md.voronoi, st.x, st.v, c.loads,
-                                     c.gusts, c.modes, c.tools, c.tool_points,
-                                     c.user_force if user else st.force, st.force)
-    if interaction is not None:
-        with stage("hair-hair"):
-            interaction(model, state, control, h)
-    with stage("integration"):
-        use_pins, f0, df, *pin_arrays = _pin_args(st, pins)
-        integrate(h, use_pins, plan.root_mode, f0, df, *pin_arrays, md.node_count, md.inv_mass,
-                  st.force, c.head, md.root_frame, st.v, st.x, st.x_prev, st.dx, st.root_t, st.root_u)
-    with stage("projection"):
-        project_constraints(plan.projection_tol, plan.projection_iterations, plan.n_analytic,
-                            plan.contacts, use_pins, plan.mesh, plan.touch, md.node_count, md.inv_mass,
-                            md.rest_length, c.head, c.kinds, c.geometry, c.params, c.sdf, c.sdf_meta,
-                            c.tools, c.tool_points, st.x, st.x_prev, st.dx, *st.scratch_edge,
-                            st.counters, st.residuals)
-    with stage("frames + twist"):
-        velocities_frames_twist(1.0 / h, c.max_speed, plan.twist_tol, plan.twist_iterations,
-                                TWIST_CODES[plan.twist], plan.root_mode, md.node_count, md.inv_mass, st.x,
-                                st.x_prev, st.dx, st.v, st.root_t, st.root_u, st.theta, st.bishop_u,
-                                st.bishop_v, st.m1, st.m2, st.kb, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
-                                *st.scratch_edge, st.counters, st.residuals)
+    `interaction(model, state, control, h)` adds hair-hair forces and velocity smoothing after
+    the forces."""
+    stage_timer = timers if timers is not None else (lambda name: nullcontext())
+    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
+    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None)
+    scalars = step_scalars(plan, control, h, fraction)
+    drive = bundles.drive(arrays_)
+    clear_bad(state.counters)
+    for name, stage in STAGES:
+        with stage_timer(name):
+            run_stage(stage, flags, scalars, bundles.model, bundles.state, drive, bundles.contacts)
+        if name == "forces" and interaction is not None:
+            with stage_timer("hair-hair"):
+                interaction(model, state, control, h)
+
+
+def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) -> None:
+    """The projection stage alone, contacts on and pins off (head pose 0 -> 1): the initial
+    contact solve."""
+    flags = stage_flags(plan, contacts=True, pins=False)
+    clear_bad(bundles.state.counters)
+    run_stage(stage_project, flags, step_scalars(plan, control, h), bundles.model, bundles.state,
+              bundles.drive(), bundles.contacts)
 
 
 @ti.kernel
-def update_twist_kernel(twist_tol: float, twist_iterations: int, twist_mode: ti.template(),
-                        clamp: ti.template(), node_count: Ints1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2,
-                        m1: Vec3s2, m2: Vec3s2, kb: Vec3s2, rest_kappa: Vec4s2, rest_twist: Scalars2,
-                        voronoi: Scalars2, stiffness: Vec4s1, a: Scalars2, b: Scalars2, c: Scalars2,
-                        counters: Ints2, residuals: Scalars2):
+def update_twist_kernel(fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs):
     """The twist stage alone; counters[s, BAD] = 0 where it failed, else -1."""
-    for s in range(theta.shape[0]):
-        counters[s, BAD] = -1
-        if strand_twist(s, twist_mode, clamp, twist_tol, twist_iterations, node_count, bishop_u,
-                        bishop_v, kb, theta, rest_kappa, rest_twist, voronoi, stiffness, m1, m2, a,
-                        b, c, counters, residuals):
-            counters[s, BAD] = 0
+    for s in range(st.theta.shape[0]):
+        st.counters[s, BAD] = -1
+        if strand_twist(s, fl, sc, md, st):
+            st.counters[s, BAD] = 0
 
 
-def total_elastic_forces(model, state, twist: str) -> None:
+def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
     """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
-    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands)."""
+    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands).
+    rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
     md, st = model, state
+    kappa = md.rest_kappa if rest_kappa is None else rest_kappa
     elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
-                   md.rest_kappa, md.voronoi, md.stiffness, st.force)
+                   kappa, md.voronoi, md.stiffness, st.force)
     if twist == "kmoch":
         kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                     st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+                     st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 
-def run_twist_update(model, state, plan: StepPlan):
+def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int):
     """The twist stage alone (no-op for "none"); material frames follow the new angles."""
-    md, st = model, state
-    if plan.twist != "none":
-        update_twist_kernel(plan.twist_tol, plan.twist_iterations, TWIST_CODES[plan.twist],
-                            md.clamp, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb,
-                            md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, *st.scratch_edge,
-                            st.counters, st.residuals)
+    if twist == "none":
+        return
+    flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
+                       moving_head=False, contacts=False, mesh=False, touch=False, pins=False,
+                       root_mode=ROOT_CODES[root])
+    scalars = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+                          twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0,
+                          pin_f0=0.0, pin_df=0.0)
+    update_twist_kernel(flags, scalars, bundles.model, bundles.state)
 
 
 @ti.kernel
