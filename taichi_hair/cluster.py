@@ -1,0 +1,210 @@
+"""Runs, sweeps and reports on a Dask cluster: `--workers N` (a LocalCluster of N worker
+processes on this machine) or `--scheduler tcp://HOST:8786` (an existing `dask scheduler` with
+`dask worker` processes, or dask-jobqueue). Needs the optional extra `cluster`
+(`pip install 'taichi_hair[cluster]'`, i.e. dask[distributed]); dask is imported here, inside
+functions, and nowhere else, so the core and the serial paths never need it.
+
+A cluster run: the client process simulates (the simulation is sequential), saves each frame's
+guides to guides/frame_NNNNN.npz, checkpoints, and submits the frame to the cluster at once. A
+worker interpolates the dense hair and renders the PNG; it returns the PNG's bytes and the client
+writes them (temporary file, then rename) and drops the frame's guides. So a frame is written
+once, by one process, whole; a worker that dies mid-frame has its task rerun elsewhere by the
+scheduler; workers need no shared folder with the client, only the scene script (and its
+assets) at the same path. Each worker process initialises Taichi once, in the scene's precision,
+on its first task, and keeps the prepared scene (interpolator, frame writer) for the run's later
+frames. The renderer and interpolator are deterministic, so the PNGs equal a serial run's byte
+for byte.
+"""
+
+import contextlib
+import logging
+import os
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+EXTRA = "pip install 'taichi_hair[cluster]'"
+
+
+def require_distributed(option: str = "--workers"):
+    """The `distributed` module, or ValueError (a one-line CLI error) naming the extra."""
+    try:
+        import distributed
+    except ImportError:
+        raise ValueError(f"{option} needs the optional extra 'cluster' (dask[distributed]), which is not "
+                         f"installed: {EXTRA}") from None
+    return distributed
+
+
+def add_arguments(parser) -> None:
+    """--workers N | --scheduler ADDR on a subcommand's parser."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="spread the work over a local Dask cluster of N worker processes (extra 'cluster')")
+    group.add_argument("--scheduler", default=None, metavar="ADDR",
+                       help="spread the work over the Dask cluster at ADDR, e.g. tcp://HOST:8786 (extra 'cluster')")
+
+
+def wanted(args) -> bool:
+    """True when the command line asks for a cluster."""
+    return getattr(args, "workers", None) is not None or getattr(args, "scheduler", None) is not None
+
+
+@contextlib.contextmanager
+def connect(workers: int | None = None, scheduler: str | None = None):
+    """A dask Client: to a LocalCluster of `workers` processes (one thread each; the workers
+    inherit this process's environment) or to the scheduler at `scheduler`. Closed on exit."""
+    distributed = require_distributed("--scheduler" if scheduler else "--workers")
+    if (workers is None) == (scheduler is None):
+        raise ValueError("give one of --workers N or --scheduler ADDR")
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout="30s")
+        except OSError as err:
+            raise ValueError(f"--scheduler {scheduler}: cannot connect ({err})") from None
+        with client:
+            yield client
+        return
+    if not (isinstance(workers, int) and workers >= 1):
+        raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
+    with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        with distributed.Client(cluster) as client:
+            yield client
+
+
+def client_from_args(args):
+    """connect(...) for the command line's --workers / --scheduler."""
+    return connect(workers=args.workers, scheduler=args.scheduler)
+
+
+def map_unordered(client, function, items, *, name: str, retries: int = 2):
+    """Submit function(item) for every item; yield (index, result) as tasks finish. A task whose
+    worker dies is rerun by the scheduler; an exception in a task is raised here."""
+    distributed = require_distributed()
+    token = uuid.uuid4().hex[:8]
+    futures = {client.submit(function, item, key=f"taichi-hair-{name}-{token}-{k}", retries=retries,
+                             pure=False): k for k, item in enumerate(items)}
+    for future in distributed.as_completed(futures):
+        yield futures[future], future.result()
+
+
+# ---- frames of a run ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RenderJob:
+    """What a worker needs to draw a run's frames: the scene script's path (readable there),
+    the sweep settings and the Shot overrides, as sorted ((name, value), ...) pairs."""
+
+    script: str
+    settings: tuple = ()
+    overrides: tuple = ()
+
+
+_prepared: dict = {}  # per worker process: repr(RenderJob) -> PreparedRun
+
+
+def _prepared_run(job: RenderJob):
+    """The job's scene prepared in this process (first call: Taichi initialised in the scene's
+    precision, the interpolator and frame writer built), kept for the job's later frames."""
+    from .runner import prepare_run
+    key = repr(job)
+    if key not in _prepared:
+        _prepared.clear()  # one run at a time per worker: free the previous run's buffers
+        _prepared[key] = prepare_run(job.script, settings=dict(job.settings), overrides=dict(job.overrides))
+    return _prepared[key]
+
+
+def render_task(job: RenderJob, frame: int, guides, pose) -> dict:
+    """On a worker: interpolate and render one frame; its PNG bytes and the wall times [s]."""
+    from .runner import render_frame
+    run = _prepared_run(job)
+    times = {"interpolation": [], "rendering": []}
+    with tempfile.TemporaryDirectory(prefix="taichi_hair_frame_") as tmp:
+        path = Path(tmp) / f"frame_{frame:05d}.png"
+        render_frame(path, frame, guides, pose, run, times)
+        png = path.read_bytes()
+    return {"frame": frame, "png": png, "interpolation": times["interpolation"][0],
+            "rendering": times["rendering"][0], "worker_pid": os.getpid()}
+
+
+def write_atomically(path, data: bytes) -> None:
+    """Write bytes to path through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
+              settings=None) -> dict:
+    """`runner.run_scene` with the frames interpolated and rendered on the cluster (module
+    docstring). Same files (PNGs, MP4, state.npz, progress.json) and the same summary, plus
+    "workers" and "frames_rendered" (PNGs written by this call, each once)."""
+    from .progress import ProgressBar
+    from .runner import (_checkpoint, _resume_point, _summary, frame_path, load_guides, make_out_dir,
+                         prepare_run, remove_guides, save_guides, simulate_frame, write_video)
+    distributed = require_distributed()
+    run = prepare_run(script, overrides=overrides, settings=settings, draw=False)
+    shot, sim = run.shot, run.sim
+    total = shot.frames if frames is None else frames
+    out = make_out_dir(out_dir)
+    done, pending = _resume_point(out, sim, shot) if resume else (0, [])
+    job = RenderJob(script=str(Path(script).resolve()), settings=tuple(sorted((settings or {}).items())),
+                    overrides=tuple(sorted((overrides or {}).items())))
+    token, tasks, written = uuid.uuid4().hex[:8], distributed.as_completed(), []
+    times = {"simulation": [], "interpolation": [], "rendering": []}
+
+    def submit(frame, guides, pose):
+        tasks.add(client.submit(render_task, job, frame, guides, pose, pure=False,
+                                key=f"taichi-hair-frame-{token}-{frame:05d}"))
+
+    def write(future):
+        result = future.result()
+        write_atomically(frame_path(out, result["frame"]), result["png"])
+        remove_guides(out, result["frame"])
+        times["interpolation"].append(result["interpolation"])
+        times["rendering"].append(result["rendering"])
+        written.append(result["frame"])
+        bar.update(1)
+
+    with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
+        bar.update(done - len(pending))
+        for frame in pending:
+            submit(frame, *load_guides(out, frame))
+        for frame in range(done, total):
+            guides, pose = simulate_frame(sim, shot, times)
+            save_guides(out, frame, guides, pose)
+            _checkpoint(out, sim, shot, frame + 1)
+            submit(frame, guides, pose)
+            while tasks.has_ready():
+                write(next(tasks))
+        for future in tasks:
+            write(future)
+    video = write_video(out, script, shot, total)
+    summary = _summary(script, total, done, times, video, sim)
+    summary.update(workers=len(client.scheduler_info()["workers"]), frames_rendered=len(written))
+    if len(set(written)) != len(written):  # cannot happen: one task per frame; checked all the same
+        raise RuntimeError(f"{out}: a frame was written twice: {sorted(written)}")
+    return summary
+
+
+# ---- timing --------------------------------------------------------------------------------------
+def time_rendering(client, script, guides_frames, *, overrides=None) -> dict:
+    """Wall time [s] to interpolate and render the given [(frame, guides, pose), ...] on the
+    cluster, after one warm-up frame per worker (Taichi start-up and compiling excluded), and
+    the same frames' worker-side seconds summed."""
+    distributed = require_distributed()
+    job = RenderJob(script=str(Path(script).resolve()), overrides=tuple(sorted((overrides or {}).items())))
+    workers = list(client.scheduler_info()["workers"])
+    warm = [client.submit(render_task, job, *guides_frames[0], workers=[w], pure=False) for w in workers]
+    distributed.wait(warm)
+    start = time.perf_counter()
+    futures = [client.submit(render_task, job, *item, pure=False) for item in guides_frames]
+    results = client.gather(futures)
+    wall = time.perf_counter() - start
+    return {"workers": len(workers), "frames": len(results), "wall_s": wall,
+            "task_s": float(np.sum([r["interpolation"] + r["rendering"] for r in results]))}
