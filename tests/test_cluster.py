@@ -185,7 +185,7 @@ def test_worker_killed_mid_job_on_a_real_scheduler(serial_run, tmp_path):
         assert f"({FRAMES} frames rendered on 1 Dask workers)" in stdout  # each frame written once
         names = sorted(p.name for p in (out / "frames").iterdir())
         assert names == [f"frame_{k:05d}.png" for k in range(FRAMES)]  # none missing, no stray .part
-        assert all(imageio.imread(out / "frames" / n).shape == (96, 128, 3) for n in names)
+        assert all(imageio.imread(out / "frames" / n).shape == (72, 96, 3) for n in names)
         assert imageio.get_reader(out / "tiny_head.mp4").count_frames() == FRAMES
         assert json.loads((out / "progress.json").read_text())["frames_done"] == FRAMES
         assert digests(out) == digests(serial_run)  # byte for byte: PNGs, MP4, state, progress
