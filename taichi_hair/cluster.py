@@ -25,8 +25,6 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 EXTRA = "pip install 'taichi_hair[cluster]'"
 
 
@@ -193,18 +191,68 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def time_rendering(client, script, guides_frames, *, overrides=None) -> dict:
-    """Wall time [s] to interpolate and render the given [(frame, guides, pose), ...] on the
-    cluster, after one warm-up frame per worker (Taichi start-up and compiling excluded), and
-    the same frames' worker-side seconds summed."""
+def bench_rendering(script, *, frames: int = 48, workers: int = 2, overrides=None, log=None) -> dict:
+    """The rendering part of a shot, serial against a LocalCluster of `workers`: simulate
+    `frames` frames here (kept in memory), then time interpolating and rendering all of them in
+    this process and on the cluster, each after a warm-up frame (Taichi start-up and compiling
+    excluded). Returns wall times [s] and their ratio."""
+    from .runner import prepare_run, render_frame, simulate_frame
+    run = prepare_run(script, overrides=overrides)
+    times = {"simulation": [], "interpolation": [], "rendering": []}
+    shot_frames = [(k, *simulate_frame(run.sim, run.shot, times)) for k in range(frames)]
+    with tempfile.TemporaryDirectory(prefix="taichi_hair_bench_") as tmp:
+        render_frame(Path(tmp) / "warm.png", *shot_frames[0], run, times)
+        start = time.perf_counter()
+        for k, guides, pose in shot_frames:
+            render_frame(Path(tmp) / f"frame_{k:05d}.png", k, guides, pose, run, times)
+        serial = time.perf_counter() - start
+    if log:
+        log(f"serial: {frames} frames rendered in {serial:.2f} s")
+    with connect(workers=workers) as client:
+        spread = time_rendering(client, script, shot_frames, overrides=overrides)
+    return {"scene": str(script), "frames": frames, "overrides": dict(overrides or {}), "serial_s": serial,
+            "cluster_s": spread["wall_s"], "workers": spread["workers"], "cluster_task_s": spread["task_s"],
+            "speedup": serial / spread["wall_s"]}
+
+
+def time_rendering(client, script, shot_frames, *, overrides=None) -> dict:
+    """Wall time [s] to interpolate and render [(frame, guides, pose), ...] on the cluster, after
+    one warm-up frame per worker, and the workers' seconds summed over the frames."""
     distributed = require_distributed()
     job = RenderJob(script=str(Path(script).resolve()), overrides=tuple(sorted((overrides or {}).items())))
     workers = list(client.scheduler_info()["workers"])
-    warm = [client.submit(render_task, job, *guides_frames[0], workers=[w], pure=False) for w in workers]
+    warm = [client.submit(render_task, job, *shot_frames[0], workers=[w], pure=False) for w in workers]
     distributed.wait(warm)
     start = time.perf_counter()
-    futures = [client.submit(render_task, job, *item, pure=False) for item in guides_frames]
+    futures = [client.submit(render_task, job, *item, pure=False) for item in shot_frames]
     results = client.gather(futures)
     wall = time.perf_counter() - start
     return {"workers": len(workers), "frames": len(results), "wall_s": wall,
-            "task_s": float(np.sum([r["interpolation"] + r["rendering"] for r in results]))}
+            "task_s": float(sum(r["interpolation"] + r["rendering"] for r in results))}
+
+
+def _main(argv=None) -> int:
+    """python -m taichi_hair.cluster SCENE [--frames 48] [--workers 2] [--width W --height H --dense D]"""
+    import argparse
+    import json
+    import sys
+    parser = argparse.ArgumentParser(prog="python -m taichi_hair.cluster", description=bench_rendering.__doc__)
+    parser.add_argument("scene")
+    parser.add_argument("--frames", type=int, default=48)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--width", type=int)
+    parser.add_argument("--height", type=int)
+    parser.add_argument("--dense", type=int)
+    args = parser.parse_args(argv)
+    overrides = {k: v for k, v in (("width", args.width), ("height", args.height), ("dense_strands", args.dense))
+                 if v is not None}
+    from taichi_hair import cluster  # this module by its name: run as __main__, dask would pickle
+    # render_task by value, with an empty cache of prepared scenes in every task
+    result = cluster.bench_rendering(args.scene, frames=args.frames, workers=args.workers, overrides=overrides,
+                             log=lambda text: print(text, file=sys.stderr, flush=True))
+    print(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main())

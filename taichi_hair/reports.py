@@ -1162,4 +1162,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from taichi_hair import reports as _by_name  # cluster tasks must be pickled by name, not from __main__
+    sys.exit(_by_name.main())
