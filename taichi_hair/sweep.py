@@ -43,23 +43,17 @@ def run_point(task: dict) -> dict:
     figures: frames, simulated seconds, substeps per step, the largest edge strain seen at a
     frame's end, the total energy (kinetic + elastic + gravity) [J] at the end, wall time [s]."""
     from .runner import run_scene
-    strain = [0.0]
+    seen = {"max_strain": 0.0, "energy_j": None}
 
     def observe(frame, sim):
-        strain[0] = max(strain[0], max_strain(sim.positions(), sim.groom))
-
-    energy = {}
-
-    def last(frame, sim):
-        observe(frame, sim)
-        energy["j"] = sim.total_energy()
+        seen["max_strain"] = max(seen["max_strain"], max_strain(sim.positions(), sim.groom))
+        seen["energy_j"] = sim.total_energy()
 
     start = time.perf_counter()
     summary = run_scene(task["script"], task["dir"], resume=True, progress=False, overrides=task["overrides"],
-                        settings=task["point"], on_frame=last)
+                        settings=task["point"], on_frame=observe)
     figures = {"frames": summary["frames"], "simulated_s": summary["simulated_s"],
-               "substeps": summary["stats"]["substeps"], "max_strain": strain[0],
-               "energy_j": energy.get("j"), "wall_s": time.perf_counter() - start}
+               "substeps": summary["stats"]["substeps"], **seen, "wall_s": time.perf_counter() - start}
     record = {"settings": {p: format_value(v) for p, v in task["point"].items()}, "figures": figures,
               "summary": summary}
     path = Path(task["dir"]) / SUMMARY_FILE
@@ -117,10 +111,10 @@ def _check_points(script, points):
     if not points or not points[0]:
         return
     from .runner import Shot, _call_script, load_scene_module
+    from .runtime import init
     from .scene import Scene
     from .settings import apply_settings
     module = load_scene_module(script)
-    from .runtime import init
     init(precision=getattr(module, "PRECISION", "float32"))
     scene = _call_script(script, module, "build", Scene)
     shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
