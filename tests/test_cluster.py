@@ -11,6 +11,7 @@ resumes (frames simulated but not rendered are rendered from their saved guides)
 import hashlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -125,9 +126,10 @@ def test_cluster_options_without_the_extra_name_it(command, monkeypatch, capsys,
 # ---- on a cluster ------------------------------------------------------------------------------------
 def test_killed_cluster_run_resumes_like_a_serial_run(serial_run, tmp_path):
     """`run --workers 2` killed whole (client and workers) once it has simulated 6 frames, then
-    `--resume --workers 2`: frames simulated before the kill (rendered then, or afterwards from
-    their saved guides) equal the uninterrupted serial run's byte for byte; the resumed
-    simulation ends where it does (a resumed state is not bit-identical: as for serial runs)."""
+    `--resume --workers 2` (and, on a copy, a serial `--resume`): frames simulated before the
+    kill (rendered then, or afterwards from their saved guides) equal the uninterrupted serial
+    run's byte for byte; the resumed simulation ends where it does (a resumed state is not
+    bit-identical: as for serial runs)."""
     pytest.importorskip("distributed")
     out = tmp_path / "out"
     args = [TINY, "--out", str(out), *RUN_ARGS, "--workers", "2"]
@@ -135,16 +137,21 @@ def test_killed_cluster_run_resumes_like_a_serial_run(serial_run, tmp_path):
     assert 6 <= done < FRAMES, "the run was not killed mid-way"
     pending = sorted(p.name for p in (out / "guides").glob("*.npz"))
     assert pending, "every simulated frame was already drawn: nothing to resume the drawing of"
+    shutil.copytree(out, tmp_path / "serially")  # the same broken run, resumed without a cluster
     resumed = run([*args, "--resume"], cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resumed from {done}" in resumed.stdout
     rendered = FRAMES - done + len(pending)  # the rest, and those simulated but not drawn before
     assert f"({rendered} frames rendered on 2 Dask workers)" in resumed.stdout
-    ours, reference = digests(out), digests(serial_run)
-    assert ours.keys() == reference.keys() and not (out / "guides").exists()
-    assert all(ours[f"frames/frame_{k:05d}.png"] == reference[f"frames/frame_{k:05d}.png"] for k in range(done))
-    a, b = np.load(out / "state.npz"), np.load(serial_run / "state.npz")
-    assert float(a["time"]) == pytest.approx(float(b["time"])) and np.abs(a["x"] - b["x"]).max() < 1e-5
+    serially = run([TINY, "--out", str(tmp_path / "serially"), *RUN_ARGS, "--resume"], cwd=tmp_path)
+    assert serially.returncode == 0, serially.stderr[-3000:]
+    reference = digests(serial_run)
+    for folder in (out, tmp_path / "serially"):
+        ours = digests(folder)
+        assert ours.keys() == reference.keys() and not (folder / "guides").exists()
+        assert all(ours[f"frames/frame_{k:05d}.png"] == reference[f"frames/frame_{k:05d}.png"] for k in range(done))
+        a, b = np.load(folder / "state.npz"), np.load(serial_run / "state.npz")
+        assert float(a["time"]) == pytest.approx(float(b["time"])) and np.abs(a["x"] - b["x"]).max() < 1e-5
 
 
 def _free_port() -> int:
