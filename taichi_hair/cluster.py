@@ -138,19 +138,27 @@ def write_atomically(path, data: bytes) -> None:
 
 
 def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
-              settings=None) -> dict:
+              settings=None, usd=None) -> dict:
     """`runner.run_scene` with the frames interpolated and rendered on the cluster (module
-    docstring). Same files (PNGs, MP4, state.npz, progress.json) and the same summary, plus
-    "workers" and "frames_rendered" (PNGs written by this call, each once)."""
+    docstring). Same files (PNGs, MP4, state.npz, progress.json, with usd the guides' USD file:
+    the client has the guides, not the dense hair, so Shot.usd must be "guides") and the same
+    summary, plus "workers" and "frames_rendered" (PNGs written by this call, each once)."""
     from .progress import ProgressBar
-    from .runner import (_checkpoint, _resume_point, _summary, frame_path, load_guides, make_out_dir,
-                         prepare_run, remove_guides, save_guides, simulate_frame, write_video)
+    from .runner import (_check_usd, _checkpoint, _resume_point, _summary, _usd_writer, _write_usd_frame,
+                         frame_path, load_guides, make_out_dir, prepare_run, remove_guides, save_guides,
+                         simulate_frame, write_video)
     distributed = require_distributed()
+    if usd is not None:
+        _check_usd(usd)
     run = prepare_run(script, overrides=overrides, settings=settings, draw=False)
     shot, sim = run.shot, run.sim
+    if usd is not None and shot.usd != "guides":
+        raise ValueError(f"--usd with --workers / --scheduler writes the guides only; this shot asks for "
+                         f"usd={shot.usd!r} (the dense hair exists on the workers): run it serially")
     total = shot.frames if frames is None else frames
     out = make_out_dir(out_dir)
     done, pending = _resume_point(out, sim, shot) if resume else (0, [])
+    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     job = RenderJob(script=str(Path(script).resolve()), settings=tuple(sorted((settings or {}).items())),
                     overrides=tuple(sorted((overrides or {}).items())))
     token, tasks, written = uuid.uuid4().hex[:8], distributed.as_completed(), []
@@ -176,6 +184,8 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
         for frame in range(done, total):
             guides, pose = simulate_frame(sim, shot, times)
             save_guides(out, frame, guides, pose)
+            if usd_writer is not None:
+                _write_usd_frame(usd_writer, frame, shot, sim, guides, None, pose)
             _checkpoint(out, sim, shot, frame + 1)
             submit(frame, guides, pose)
             while tasks.has_ready():
@@ -185,6 +195,8 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
     video = write_video(out, script, shot, total)
     summary = _summary(script, total, done, times, video, sim)
     summary.update(workers=len(client.scheduler_info()["workers"]), frames_rendered=len(written))
+    if usd_writer is not None:
+        summary["usd"] = str(usd_writer.path)
     if len(set(written)) != len(written):  # cannot happen: one task per frame; checked all the same
         raise RuntimeError(f"{out}: a frame was written twice: {sorted(written)}")
     return summary

@@ -448,10 +448,8 @@ def main(args) -> int:
     options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
                    overrides=shot_overrides(args))
     if cluster.wanted(args):
-        if args.usd:
-            raise ValueError("--usd is not available with --workers / --scheduler yet: run it serially")
         with cluster.client_from_args(args) as client:
-            summary = cluster.run_scene(client, args.scene, args.out, **options)
+            summary = cluster.run_scene(client, args.scene, args.out, usd=args.usd, **options)
     else:
         summary = run_scene(args.scene, args.out, usd=args.usd, **options)
     print(format_summary(summary))

@@ -36,6 +36,11 @@ TINY = str(ROOT / "tests" / "data" / "tiny_head.py")
 CANTILEVER = str(ROOT / "scenes" / "cantilever.py")
 FRAMES = 16
 RUN_ARGS = ["--frames", str(FRAMES), "--width", "96", "--height", "72", "--dense", "1500"]
+try:  # with usd-core, the serial reference and the killed-worker run also write the guides as USD
+    import pxr  # noqa: F401
+    USD = ["--usd", "usda"]
+except ImportError:
+    USD = []
 
 
 def digests(out: Path) -> dict:
@@ -49,7 +54,7 @@ def digests(out: Path) -> dict:
 def serial_run(tmp_path_factory):
     """The tiny head scene run serially: the reference every cluster run must equal (its folder)."""
     out = tmp_path_factory.mktemp("serial") / "out"
-    result = run([TINY, "--out", str(out), *RUN_ARGS], cwd=out.parent)
+    result = run([TINY, "--out", str(out), *RUN_ARGS, *USD], cwd=out.parent)
     assert result.returncode == 0, result.stderr[-3000:]
     return out
 
@@ -179,7 +184,7 @@ def test_worker_killed_mid_job_on_a_real_scheduler(serial_run, tmp_path):
             client.wait_for_workers(2, timeout=60)
         out = tmp_path / "out"
         job = subprocess.Popen([sys.executable, "-m", "taichi_hair", "run", TINY, "--out", str(out), *RUN_ARGS,
-                                "--scheduler", address, "--no-progress"], cwd=tmp_path, env=env,
+                                *USD, "--scheduler", address, "--no-progress"], cwd=tmp_path, env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.time() + 300
         while len(list((out / "frames").glob("frame_*.png"))) < 2 and time.time() < deadline:
@@ -196,6 +201,8 @@ def test_worker_killed_mid_job_on_a_real_scheduler(serial_run, tmp_path):
         assert imageio.get_reader(out / "tiny_head.mp4").count_frames() == FRAMES
         assert json.loads((out / "progress.json").read_text())["frames_done"] == FRAMES
         assert digests(out) == digests(serial_run)  # byte for byte: PNGs, MP4, state, progress
+        if USD:  # the guides' USD file, written by the client as a serial run writes it
+            assert (out / "tiny_head.usda").read_bytes() == (serial_run / "tiny_head.usda").read_bytes()
     finally:
         for p in procs:
             if p.poll() is None:
