@@ -8,8 +8,6 @@ out/assets/) so nothing is downloaded; point STYLE at your own file to animate i
 
 from pathlib import Path
 
-import numpy as np
-
 import taichi_hair as th
 from taichi_hair.runner import Shot
 

@@ -1,4 +1,4 @@
-"""`taichi-hair bench`: simulation throughput on the issue's reference scene.
+"""`taichi-hair bench`: simulation throughput on a reference scene (below).
 
 Scene: S guides x 32 nodes of human hair (E = 3 GPa, G = 1 GPa, radius 40 um, 1 cm segments,
 rho = 1300 kg/m^3), roots spread over a 10 cm sphere and growing outward, gravity on, no drag,

@@ -54,7 +54,7 @@ def root_keeps_collider(root_distance, margin):
 
 @ti.func
 def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.template(),
-                   x_prev: ti.template(), head: ti.template(), now, prev,
+                   x_prev: ti.template(), dx: ti.template(), head: ti.template(), now, prev,
                    n_analytic, kinds: ti.template(), geometry: ti.template(), params: ti.template(),
                    use_mesh: ti.template(), sdf: ti.template(), sdf_meta: ti.template(),
                    use_touch: ti.template(), tools: ti.template(), tool_points: ti.template(),
@@ -66,8 +66,8 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
     own root deeper than its margin (signed distance < -margin) is skipped for that strand:
     pushing its nodes out would fight the held root every step (a groom rooted inside a neck
     capsule, say). A root on the surface or within the margin keeps the collider; the Simulator
-    warns about every skipped (strand, collider) pair at construction. Returns the number of
-    pushes."""
+    warns about every skipped (strand, collider) pair at construction. A pushed node's step
+    displacement dx becomes x - x_prev. Returns the number of pushes."""
     pushes = 0
     root = x[s, 0]
     for c in range(n_analytic):
@@ -84,6 +84,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
+                        dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
                         pushes += 1
     if ti.static(use_mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
@@ -100,6 +101,7 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
+                        dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
                         pushes += 1
     if ti.static(use_touch):
         for k in range(tools.shape[0]):
@@ -114,5 +116,6 @@ def strand_collide(s, node_count: ti.template(), inv_mass: ti.template(), x: ti.
                         if d < tools[k][2]:
                             x[s, i] = centre + resolve_contact(local, local_prev, d, n, tools[k][2],
                                                                tools[k][3])
-                            pushes += 1
+                            dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
+                        pushes += 1
     return pushes

@@ -1,4 +1,4 @@
-"""Sag-free start (issue 10): rest curvatures that make the groomed shape the shape at rest
+"""Sag-free start: rest curvatures that make the groomed shape the shape at rest
 under gravity.
 
 A groom modelled under gravity sags further the moment gravity is switched on if it is taken as

@@ -2,7 +2,6 @@
 touch tools and hair-hair interaction, handed to `Simulator.from_scene`."""
 
 from dataclasses import dataclass, field
-import math
 
 import numpy as np
 

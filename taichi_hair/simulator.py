@@ -683,13 +683,18 @@ def _check_strand_geometry(x, node_counts):
 def default_projection_tol(groom: Groom) -> float:
     """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
     errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
-    (taken with a factor 8 of margin; X covers where the hair can reach from its roots)."""
+    (X covers where the hair can reach from its roots); taken with a factor 2 of margin. Not
+    more: a residual left at tol is an edge stretched by tol ds / 2 that the next step removes
+    as a velocity kick of that size over the substep, which heats fine, stiff hair (8 eps X / ds
+    and above: +5 % of the energy in play at 1 mm segments; docs/model.md, "Velocities"). Not
+    less: an undamped spring grab at 0.5 m/s, which the looser projection's slack steadied,
+    diverges at 2 eps X / ds."""
     if precision() == "float64":
         return 1e-6
     reach = np.abs(groom.positions).max() + groom.lengths().max()
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
-    return max(1e-6, 16 * float(np.finfo(np.float32).eps) * reach / shortest)
+    return max(1e-6, 4 * float(np.finfo(np.float32).eps) * reach / shortest)
 
 
 def _max_air_speed(wind) -> float:

@@ -7,12 +7,11 @@ Arrays are Taichi ndarrays indexed [strand, node] (N = the groom's widest strand
 from dataclasses import dataclass
 
 import numpy as np
-import taichi as ti
 
 from . import arrays
 from .frames import update_frames, update_material_frames
 from .groom import Groom
-from .materials import Material, per_strand_materials, stiffness_table
+from .materials import per_strand_materials, stiffness_table
 from .rod import material_curvatures
 
 
@@ -25,11 +24,11 @@ class RodModel:
     share of the strand); inv_mass [S, N] 1/kg (0 on the root node, which rides on the head);
     clamp: the root is clamped (node 0 bends and twists against the head-carried root frame)
     (False: a hinge or a rigid first edge); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
-    rest_theta [S, N-1] rad; rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
+    rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
     rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
     the root edge's two nodes [m], its unit tangent and its reference u (the root edge's rest
-    material direction m1, so the clamp's angle is 0 and rest_theta[:, 0] = 0), all in head
-    coordinates (the rest pose); root_tangent_np, root_reference_np: numpy [S, 3] copies."""
+    material direction m1, so the clamp's angle is 0 and the first rest angle is 0), all in head
+    coordinates (the rest pose)."""
 
     groom: Groom
     materials: tuple
@@ -40,12 +39,9 @@ class RodModel:
     inv_mass: object
     mass: object
     stiffness: object
-    rest_theta: object
     rest_kappa: object
     rest_twist: object
     root_frame: object
-    root_tangent_np: np.ndarray
-    root_reference_np: np.ndarray
 
     @property
     def n_strands(self) -> int:
@@ -83,10 +79,9 @@ class RodState:
     root_u: object
     force: object
     x_prev: object
-    dx: object  # [S, N] vec3 scratch of the projection
+    dx: object  # [S, N] vec3: the step's displacement of each node (strand_velocities)
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
-    strand_count: object  # [S] int
     counters: object  # [S, 8] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
 
@@ -133,7 +128,6 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodS
         dx=arrays.vectors(3, (s_count, n_max)),
         scratch_edge=tuple(arrays.scalars(edges) for _ in range(3)),
         strand_scalar=arrays.scalars((s_count,)),
-        strand_count=arrays.ints((s_count,), 0),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
     )
@@ -215,10 +209,8 @@ def build(groom: Groom, material, clamp: bool = True) -> tuple[RodModel, RodStat
         inv_mass=arrays.scalars(inv_mass.shape, inv_mass),
         mass=arrays.scalars(mass.shape, mass),
         stiffness=arrays.vectors(4, (groom.n_strands,), stiffness),
-        rest_theta=arrays.scalars(rest_theta.shape, rest_theta),
         rest_kappa=rest_kappa, rest_twist=arrays.scalars(rest_twist.shape, rest_twist),
         root_frame=arrays.vectors(3, (groom.n_strands, 4), np.concatenate(
             [groom.positions[:, :2], root_t[:, None], root_u[:, None]], axis=1)),
-        root_tangent_np=root_t, root_reference_np=root_u,
     )
     return model, state

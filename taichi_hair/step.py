@@ -21,7 +21,7 @@ import taichi as ti
 from .arrays import Ints1, Ints2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
 from .collisions import strand_collide
 from .forces import air_velocity, grab_force
-from .frames import strand_frames, strand_material_frames, update_frames
+from .frames import strand_frames, strand_material_frames
 from .linalg import thomas_solve
 from .pins import strand_carry_root_frame, strand_place_pins
 from .rod import elastic_forces, strand_elastic_forces
@@ -107,13 +107,16 @@ def strand_add_forces(s, node_count: ti.template(), extra: ti.template(), force:
 @ti.func
 def strand_symplectic_euler(s, h, node_count: ti.template(), inv_mass: ti.template(),
                             force: ti.template(), v: ti.template(), x: ti.template(),
-                            x_prev: ti.template()):
-    """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0)."""
+                            x_prev: ti.template(), dx: ti.template()):
+    """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0); dx = the step's
+    displacement so far (h v, 0 on held nodes), which the projection and contacts add to."""
     for i in range(node_count[s]):
         x_prev[s, i] = x[s, i]
+        dx[s, i] = vec3(0.0)
         if inv_mass[s, i] > 0.0:
             v[s, i] += h * inv_mass[s, i] * force[s, i]
-            x[s, i] += h * v[s, i]
+            dx[s, i] = h * v[s, i]
+            x[s, i] += dx[s, i]
 
 
 @ti.func
@@ -138,16 +141,24 @@ def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: t
 def solve_inextensibility(s, n, inv_mass: ti.template(), x: ti.template(), dx: ti.template(),
                           diag: ti.template(), upper: ti.template(), rhs: ti.template()):
     """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
-    in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda."""
+    in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda; the correction is added
+    to the step's displacement dx too (see strand_velocities)."""
     thomas_solve(s, 0, n - 2, diag, upper, rhs)
+    # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
+    # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
+    e_before = vec3(0.0)
     for i in range(n):
-        dx[s, i] = vec3(0.0)
-    for j in range(n - 1):
-        e = x[s, j + 1] - x[s, j]
-        dx[s, j] += 2.0 * inv_mass[s, j] * rhs[s, j] * e
-        dx[s, j + 1] -= 2.0 * inv_mass[s, j + 1] * rhs[s, j] * e
-    for i in range(n):
-        x[s, i] += dx[s, i]
+        move = vec3(0.0)
+        e = vec3(0.0)
+        if i + 1 < n:
+            e = x[s, i + 1] - x[s, i]
+            move += rhs[s, i] * e
+        if i > 0:
+            move -= rhs[s, i - 1] * e_before
+        move *= 2.0 * inv_mass[s, i]
+        x[s, i] += move
+        dx[s, i] += move
+        e_before = e
 
 
 @ti.func
@@ -175,7 +186,7 @@ def strand_project(s, tol, max_iterations, pins: ti.template(), node_count: ti.t
     previous = 0.0
     while True:
         if ti.static(contacts):
-            strand_collide(s, node_count, inv_mass, x, x_prev, head, now, prev, n_analytic, kinds,
+            strand_collide(s, node_count, inv_mass, x, x_prev, dx, head, now, prev, n_analytic, kinds,
                            geometry, params, use_mesh, sdf, sdf_meta, use_touch, tools, tool_points,
                            tool_now, tool_prev)
         previous = res
@@ -203,12 +214,18 @@ def strand_project(s, tol, max_iterations, pins: ti.template(), node_count: ti.t
 
 
 @ti.func
-def strand_velocities(s, inv_h, max_speed, node_count: ti.template(), x: ti.template(),
-                      x_prev: ti.template(), v: ti.template()):
-    """v = (x - x_prev) / h. Returns 1 if a node is non-finite or faster than max_speed, else 0."""
+def strand_velocities(s, inv_h, max_speed, node_count: ti.template(), inv_mass: ti.template(),
+                      x: ti.template(), x_prev: ti.template(), dx: ti.template(), v: ti.template()):
+    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx:
+    x itself is rounded to its coordinates' precision at every update, and in float32 with small
+    substeps (eps |x| / h ~ mm/s at 1 mm segments) that rounding, read back as velocity, would
+    heat the hair (docs/model.md, "Velocities"). Held nodes take the difference of positions.
+    Returns 1 if a node is non-finite or faster than max_speed, else 0."""
     bad = 0
     for i in range(node_count[s]):
-        vel = (x[s, i] - x_prev[s, i]) * inv_h
+        vel = dx[s, i] * inv_h
+        if inv_mass[s, i] == 0.0:
+            vel = (x[s, i] - x_prev[s, i]) * inv_h
         v[s, i] = vel
         # written so that NaN, which fails every comparison, counts as bad
         if not (vel.dot(vel) <= max_speed * max_speed):
@@ -310,7 +327,7 @@ def advance_strands(
                                        voronoi, x, v, loads, gusts, modes, tools, tool_points, k, force)
             if ti.static(user):
                 strand_add_forces(s, node_count, user_force, force)
-            strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
+            strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev, dx)
             strand_place_root(s, head, now, root_frame, x, root_t, root_u, root_mode)
             if ti.static(pins):
                 strand_place_pins(s, ti.min(1.0, pin_f0 + (k + 1) * pin_df), node_count, pin_mode,
@@ -320,7 +337,7 @@ def advance_strands(
                                      x_prev, head, now, prev, n_analytic, kinds, geometry, params,
                                      use_mesh, sdf, sdf_meta, touch, tools, tool_points, k + 1, k)
             record_projection(s, counters, residuals, it, res, projection_tol, projection_iterations)
-            bad = strand_velocities(s, 1.0 / h, max_speed, node_count, x, x_prev, v)
+            bad = strand_velocities(s, 1.0 / h, max_speed, node_count, inv_mass, x, x_prev, dx, v)
             if not (res <= FAILED_ABOVE):
                 bad = 1
             strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u,
@@ -348,7 +365,7 @@ def compiled_variants() -> list[dict]:
 
 
 def _common_args(model, state, control, plan: StepPlan):
-    md, st = model, state
+    md = model
     return (md.node_count, md.mass, md.inv_mass, md.rest_length, md.voronoi, md.stiffness,
             md.rest_kappa, md.rest_twist, md.root_frame)
 
@@ -402,11 +419,11 @@ def external_and_user_forces(t: float, drag: float, external: ti.template(), win
 def integrate(h: float, pins: ti.template(), root_mode: ti.template(), pin_f0: float, pin_df: float,
               pin_mode: Ints2, pin_start: Vec3s2, pin_end: Vec3s2, node_count: Ints1,
               inv_mass: Scalars2, force: Vec3s2, head: Vec3s2, root_frame: Vec3s2, v: Vec3s2, x: Vec3s2,
-              x_prev: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
+              x_prev: Vec3s2, dx: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
     """Symplectic Euler, then the root nodes onto head pose 1 and pinned nodes pin_f0 + pin_df
     of the way to their end targets. One thread per strand."""
     for s in range(x.shape[0]):
-        strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev)
+        strand_symplectic_euler(s, h, node_count, inv_mass, force, v, x, x_prev, dx)
         strand_place_root(s, head, 1, root_frame, x, root_t, root_u, root_mode)
         if ti.static(pins):
             strand_place_pins(s, ti.min(1.0, pin_f0 + pin_df), node_count, pin_mode, pin_start,
@@ -436,7 +453,7 @@ def project_constraints(tol: float, max_iterations: int, n_analytic: int, contac
 @ti.kernel
 def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, twist_iterations: int,
                             twist_mode: ti.template(), root_mode: ti.template(), node_count: Ints1,
-                            x: Vec3s2, x_prev: Vec3s2,
+                            inv_mass: Scalars2, x: Vec3s2, x_prev: Vec3s2, dx: Vec3s2,
                             v: Vec3s2, root_t: Vec3s1, root_u: Vec3s1, theta: Scalars2,
                             bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2, m2: Vec3s2, kb: Vec3s2,
                             rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2,
@@ -444,7 +461,7 @@ def velocities_frames_twist(inv_h: float, max_speed: float, twist_tol: float, tw
                             counters: Ints2, residuals: Scalars2):
     """Velocities from positions (with the blow-up check), frames and the twist update."""
     for s in range(x.shape[0]):
-        if strand_velocities(s, inv_h, max_speed, node_count, x, x_prev, v):
+        if strand_velocities(s, inv_h, max_speed, node_count, inv_mass, x, x_prev, dx, v):
             counters[s, BAD] = 0
         strand_frames(s, ti.static(root_mode == 0), x, node_count, root_t, root_u, theta, bishop_u, bishop_v,
                       m1, m2, kb)
@@ -485,7 +502,7 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
     with stage("integration"):
         use_pins, f0, df, *pin_arrays = _pin_args(st, pins)
         integrate(h, use_pins, plan.root_mode, f0, df, *pin_arrays, md.node_count, md.inv_mass,
-                  st.force, c.head, md.root_frame, st.v, st.x, st.x_prev, st.root_t, st.root_u)
+                  st.force, c.head, md.root_frame, st.v, st.x, st.x_prev, st.dx, st.root_t, st.root_u)
     with stage("projection"):
         project_constraints(plan.projection_tol, plan.projection_iterations, plan.n_analytic,
                             plan.contacts, use_pins, plan.mesh, plan.touch, md.node_count, md.inv_mass,
@@ -494,8 +511,8 @@ def kmoch_step(model, state, control, plan: StepPlan, h: float, timers=None, int
                             st.counters, st.residuals)
     with stage("frames + twist"):
         velocities_frames_twist(1.0 / h, c.max_speed, plan.twist_tol, plan.twist_iterations,
-                                TWIST_CODES[plan.twist], plan.root_mode, md.node_count, st.x,
-                                st.x_prev, st.v, st.root_t, st.root_u, st.theta, st.bishop_u,
+                                TWIST_CODES[plan.twist], plan.root_mode, md.node_count, md.inv_mass, st.x,
+                                st.x_prev, st.dx, st.v, st.root_t, st.root_u, st.theta, st.bishop_u,
                                 st.bishop_v, st.m1, st.m2, st.kb, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
                                 *st.scratch_edge, st.counters, st.residuals)
 

@@ -1,4 +1,4 @@
-"""Head collisions, wind, touch, hair-hair interaction and stage selection (issue 5)."""
+"""Head collisions, wind, touch, hair-hair interaction and stage selection."""
 
 import subprocess
 import sys

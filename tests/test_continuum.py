@@ -13,7 +13,7 @@ from taichi_hair.continuum import curly_root_frame, hanging_helix, helix_strains
 
 from references import cantilever_elastica_tip
 
-# the issue's hanging helix: 3 turns of radius 5 cm, pitch 5 cm; rod radius 1 cm, E 1e7 Pa
+# the reference hanging helix: 3 turns of radius 5 cm, pitch 5 cm; rod radius 1 cm, E 1e7 Pa
 CURL_RADIUS, CURL_PITCH, TURNS = 0.05, 0.05, 3
 HELIX_LENGTH = TURNS * math.hypot(2 * math.pi * CURL_RADIUS, CURL_PITCH)
 ROD_RADIUS, YOUNGS, DENSITY = 0.01, 1e7, 1300.0
@@ -32,7 +32,7 @@ ALONG_X = np.column_stack([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 
 @functools.lru_cache(maxsize=None)
 def helix_solution(direction, stiffness=ROUND, n_steps=4000):
-    """The loaded issue helix (cached: several tests read the same solve) and its wall time [s]."""
+    """The loaded reference helix (cached: several tests read the same solve) and its wall time [s]."""
     start = time.perf_counter()
     result = hanging_helix(HELIX_LENGTH, CURL_RADIUS, CURL_PITCH, direction, stiffness,
                            LINEAR_DENSITY, gravity=GRAVITY, n_steps=n_steps)

@@ -8,7 +8,6 @@ import time
 import tracemalloc
 
 import numpy as np
-import pytest
 
 import taichi_hair as th
 from taichi_hair.hairfile import HairFileError, read_hair, read_obj_polylines, write_hair

@@ -2,7 +2,6 @@
 numpy log-log plotter they draw with."""
 
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -101,7 +100,8 @@ def test_accuracy_writes_json_and_a_non_blank_png(accuracy):
 
 
 def test_stability_matrix_covers_every_axis():
-    """>= 100 cases (quick: a third, >= 34) sweeping each axis of the issue over its whole range,
+    """>= 100 cases (quick: a third, >= 34) sweeping each axis (material, geometry, step, motion,
+    air, touch, pins, interaction, head, twist, precision, limits) over its whole range,
     alone and combined, in both precisions and every twist mode."""
     full, quick = reports.stability_cases(quick=False), reports.stability_cases(quick=True)
     assert len(full) >= 100 and 34 <= len(quick) <= len(full) // 2
@@ -118,7 +118,7 @@ def test_stability_matrix_covers_every_axis():
         assert any(set(reports.case_axes(c)) <= {axis} | needs.get(axis, set()) and axis in reports.case_axes(c)
                    for c in full), axis
     assert sum(len(reports.case_axes(c)) >= 3 for c in full) >= 15
-    # the ranges of the issue, end to end
+    # each axis from one end of its range to the other
     def span(field, cases=full):
         values = [getattr(c, field) for c in cases]
         return min(values), max(values)

@@ -14,8 +14,8 @@ CURL_RADII = (0.003, 0.006, 0.01, 0.02)  # [m]
 
 
 def random_helices(count, seed):
-    """`count` elliptic helices (13 nodes, every ellipticity and curl radius of the issue), one
-    Material each, and their rest nodes moved by up to a quarter of a segment."""
+    """`count` elliptic helices (13 nodes, every ellipticity 1.3 to 4 and curl radius 3 mm to
+    2 cm of the sweep), one Material each, and their rest nodes moved by up to a quarter of a segment."""
     rng = np.random.default_rng(seed)
     grooms, materials = [], []
     for k in range(count):
@@ -81,7 +81,7 @@ def test_forces_are_the_gradient_at_twist_equilibrium_on_elliptic_helices():
 
 
 def test_solve_from_zero_angles_finds_the_same_minimum():
-    """The issue's case: a 13-node elliptic helix (ellipticity 1.7, curl radius 1 cm, pitch
+    """The reported case: a 13-node elliptic helix (ellipticity 1.7, curl radius 1 cm, pitch
     1.5 cm, 1.7 turns) with its nodes moved by 2 mm; re-solved from zero angles, the solve
     used to stop at its cap 0.98 rad away from the warm-started answer."""
     length = 1.7 * np.hypot(2 * np.pi * 0.01, 0.015)
