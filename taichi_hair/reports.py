@@ -29,6 +29,10 @@ outcome stable / substepped (n) / refused: <message> (a strict bound, max_subste
 SimulationDiverged) / FAIL (any other exception, a NaN, > 1 % strain, a node deeper in a collider
 than its margin, energy rising without a source). float32 and float64 cases run in one process
 each (`python -m taichi_hair.reports stability --worker --precision float64`, cases on stdin).
+
+Both spread over a Dask cluster with --workers N / --scheduler ADDR (taichi_hair.cluster): one
+task per accuracy row, stability cases in chunks of one precision; a worker whose Taichi runs the
+other precision runs the task through the same --worker subprocess. The rows are the serial ones.
 """
 
 import argparse
