@@ -2,7 +2,8 @@
 settings. Tests that need dask skip without it (`pytest.importorskip("distributed")`); CI
 installs the extra, so they run there.
 
-Parity: a cluster run's PNGs, MP4, state and progress record equal a serial run's byte for byte;
+Parity: a cluster run's PNGs, MP4, state and progress record equal a serial run's byte for byte
+(with Taichi single-threaded everywhere, see `one_taichi_thread`);
 a sweep's table equals the serial sweep's (wall times apart); the stability and accuracy reports
 give the serial rows. Robustness: a real `dask scheduler` and two `dask worker` processes, one
 SIGKILLed mid-job: the job finishes with every frame written once; a cluster run killed whole
@@ -48,6 +49,16 @@ def digests(out: Path) -> dict:
     files = sorted((out / "frames").glob("*")) + sorted(out.glob("*.mp4")) + [out / "state.npz",
                                                                             out / "progress.json"]
     return {str(p.relative_to(out)): hashlib.sha1(p.read_bytes()).hexdigest() for p in files}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_taichi_thread():
+    """Taichi single-threaded in every process these tests start (runs, local and real workers):
+    the renderer sums far fragments and shadow opacity with float atomic adds, whose order
+    follows the threads, so multi-threaded runs (serial ones too) can differ in a few pixels."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("TI_CPU_MAX_NUM_THREADS", "1")
+        yield
 
 
 @pytest.fixture(scope="module")
