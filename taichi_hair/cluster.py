@@ -217,48 +217,59 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
 
 
 # ---- timing --------------------------------------------------------------------------------------
-def bench_rendering(script, *, frames: int = 48, workers: int = 2, overrides=None, log=None) -> dict:
+def bench_rendering(script, *, frames: int = 48, workers: int = 2, rounds: int = 3, overrides=None,
+                    log=None) -> dict:
     """The rendering part of a shot, serial against a LocalCluster of `workers`: simulate
     `frames` frames here (kept in memory), then time interpolating and rendering all of them in
-    this process and on the cluster, each after a warm-up frame (Taichi start-up and compiling
-    excluded). Returns wall times [s] and their ratio."""
+    this process and on the cluster, alternately, `rounds` times (so both sides see the same
+    drift in the machine's load), each side warmed up first (Taichi start-up and compiling
+    excluded). Returns the wall times [s] per round, their ratios and the median ratio."""
+    import statistics
     from .runner import prepare_run, render_frame, simulate_frame
     run = prepare_run(script, overrides=overrides)
     times = {"simulation": [], "interpolation": [], "rendering": []}
     shot_frames = [(k, *simulate_frame(run.sim, run.shot, times)) for k in range(frames)]
-    with tempfile.TemporaryDirectory(prefix="taichi_hair_bench_") as tmp:
+    serial, spread = [], []
+    with connect(workers=workers) as client, tempfile.TemporaryDirectory(prefix="taichi_hair_bench_") as tmp:
         render_frame(Path(tmp) / "warm.png", *shot_frames[0], run, times)
-        start = time.perf_counter()
-        for k, guides, pose in shot_frames:
-            render_frame(Path(tmp) / f"frame_{k:05d}.png", k, guides, pose, run, times)
-        serial = time.perf_counter() - start
-    if log:
-        log(f"serial: {frames} frames rendered in {serial:.2f} s")
-    with connect(workers=workers) as client:
-        spread = time_rendering(client, script, shot_frames, overrides=overrides)
-    return {"scene": str(script), "frames": frames, "overrides": dict(overrides or {}), "serial_s": serial,
-            "cluster_s": spread["wall_s"], "workers": spread["workers"], "cluster_task_s": spread["task_s"],
-            "speedup": serial / spread["wall_s"]}
+        warm_up(client, script, shot_frames[0], overrides=overrides)
+        for r in range(rounds):
+            start = time.perf_counter()
+            for k, guides, pose in shot_frames:
+                render_frame(Path(tmp) / f"frame_{k:05d}.png", k, guides, pose, run, times)
+            serial.append(time.perf_counter() - start)
+            spread.append(time_rendering(client, script, shot_frames, overrides=overrides))
+            if log:
+                log(f"round {r}: serial {serial[-1]:.2f} s, {workers} workers {spread[-1]['wall_s']:.2f} s")
+    ratios = [s / c["wall_s"] for s, c in zip(serial, spread)]
+    return {"scene": str(script), "frames": frames, "overrides": dict(overrides or {}), "workers": workers,
+            "serial_s": serial, "cluster_s": [c["wall_s"] for c in spread],
+            "cluster_task_s": [c["task_s"] for c in spread], "speedup": ratios,
+            "median_speedup": statistics.median(ratios)}
+
+
+def warm_up(client, script, item, *, overrides=None) -> None:
+    """One frame on every worker: Taichi started, the scene prepared, the kernels compiled."""
+    distributed = require_distributed()
+    job = RenderJob(script=str(Path(script).resolve()), overrides=tuple(sorted((overrides or {}).items())))
+    distributed.wait([client.submit(render_task, job, *item, workers=[w], pure=False)
+                      for w in client.scheduler_info()["workers"]])
 
 
 def time_rendering(client, script, shot_frames, *, overrides=None) -> dict:
-    """Wall time [s] to interpolate and render [(frame, guides, pose), ...] on the cluster, after
-    one warm-up frame per worker, and the workers' seconds summed over the frames."""
-    distributed = require_distributed()
+    """Wall time [s] to interpolate and render [(frame, guides, pose), ...] on the (warm)
+    cluster, and the workers' seconds summed over the frames."""
     job = RenderJob(script=str(Path(script).resolve()), overrides=tuple(sorted((overrides or {}).items())))
-    workers = list(client.scheduler_info()["workers"])
-    warm = [client.submit(render_task, job, *shot_frames[0], workers=[w], pure=False) for w in workers]
-    distributed.wait(warm)
     start = time.perf_counter()
-    futures = [client.submit(render_task, job, *item, pure=False) for item in shot_frames]
-    results = client.gather(futures)
+    results = client.gather([client.submit(render_task, job, *item, pure=False) for item in shot_frames])
     wall = time.perf_counter() - start
-    return {"workers": len(workers), "frames": len(results), "wall_s": wall,
+    return {"workers": len(client.scheduler_info()["workers"]), "frames": len(results), "wall_s": wall,
             "task_s": float(sum(r["interpolation"] + r["rendering"] for r in results))}
 
 
 def _main(argv=None) -> int:
-    """python -m taichi_hair.cluster SCENE [--frames 48] [--workers 2] [--width W --height H --dense D]"""
+    """python -m taichi_hair.cluster SCENE [--frames 48] [--workers 2] [--rounds 3] [--width W --height H
+    --dense D]: `bench_rendering`, JSON on stdout."""
     import argparse
     import json
     import sys
@@ -266,6 +277,7 @@ def _main(argv=None) -> int:
     parser.add_argument("scene")
     parser.add_argument("--frames", type=int, default=48)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--width", type=int)
     parser.add_argument("--height", type=int)
     parser.add_argument("--dense", type=int)
@@ -274,8 +286,8 @@ def _main(argv=None) -> int:
                  if v is not None}
     from taichi_hair import cluster  # this module by its name: run as __main__, dask would pickle
     # render_task by value, with an empty cache of prepared scenes in every task
-    result = cluster.bench_rendering(args.scene, frames=args.frames, workers=args.workers, overrides=overrides,
-                             log=lambda text: print(text, file=sys.stderr, flush=True))
+    result = cluster.bench_rendering(args.scene, frames=args.frames, workers=args.workers, rounds=args.rounds,
+                                     overrides=overrides, log=lambda text: print(text, file=sys.stderr, flush=True))
     print(json.dumps(result, indent=1))
     return 0
 
