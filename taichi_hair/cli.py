@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from . import bench, reports, runner
+from . import bench, reports, runner, sweep
 from .stability import SimulationDiverged
 
 
@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
     bench.add_parser(sub)
     runner.add_parser(sub)
+    sweep.add_parser(sub)
     reports.add_parsers(sub)
     return parser
 

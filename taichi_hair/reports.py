@@ -29,9 +29,14 @@ outcome stable / substepped (n) / refused: <message> (a strict bound, max_subste
 SimulationDiverged) / FAIL (any other exception, a NaN, > 1 % strain, a node deeper in a collider
 than its margin, energy rising without a source). float32 and float64 cases run in one process
 each (`python -m taichi_hair.reports stability --worker --precision float64`, cases on stdin).
+
+Both spread over a Dask cluster with --workers N / --scheduler ADDR (taichi_hair.cluster): one
+task per accuracy row, stability cases in chunks of one precision; a worker whose Taichi runs the
+other precision runs the task through the same --worker subprocess. The rows are the serial ones.
 """
 
 import argparse
+import contextlib
 import functools
 import json
 import math
@@ -312,36 +317,56 @@ def curl_row(n: int, dt: float, axis: str, repeats: int = 1, root: str = "clampe
                 error=float(np.linalg.norm(tip - ref["tip"]) / ref["drop"]))
 
 
+def helix_reference_spec(sweep: AccuracySweep) -> dict:
+    """The fine solve (float64): reference_factor x the finest helix count, quasistatic twist."""
+    n = sweep.reference_factor * max(sweep.helix_segments)
+    return {"case": "helix", "n": n, "dt": min((sweep.base_dt,) + tuple(sweep.dts)), "twist": "quasistatic",
+            "repeats": 1}
+
+
 def helix_reference(sweep: AccuracySweep) -> dict:
     """Fine solve (float64 process): reference_factor x the finest helix count, quasistatic twist."""
-    n = sweep.reference_factor * max(sweep.helix_segments)
-    return helix_row(n, min((sweep.base_dt,) + tuple(sweep.dts)), "quasistatic")
+    return accuracy_row(helix_reference_spec(sweep))
 
 
-def accuracy_rows(sweep: AccuracySweep, log=None) -> list:
-    """Every row of the sweep in this process's precision: segment counts at base_dt, then the
-    time steps at dt_segments (helix: for each twist mode)."""
-    rows = []
-    cases = (("cantilever", sweep.cantilever_segments, ("none",)),
-             ("frequency", sweep.frequency_segments, ("none",)), ("helix", sweep.helix_segments, sweep.twists))
+def accuracy_specs(sweep: AccuracySweep) -> list:
+    """Every row of the sweep as a spec (JSON-able dict, see `accuracy_row`), in table order:
+    the curled rods' segment counts, then per case the segment counts at base_dt and the time
+    steps at dt_segments (helix: for each twist mode)."""
+    specs = []
     for axis in CURL_AXES:  # segment counts only: the reference is static
         for root in ("clamped", "edge"):
-            for n in sweep.curl_segments:
-                rows.append(curl_row(n, sweep.base_dt, axis, sweep.repeats, root))
-                if log:
-                    log(f"{rows[-1]['case']} {n} segments: error {rows[-1]['error']:.3g}, "
-                        f"wall {rows[-1]['wall_s']:.2f} s")
+            specs += [{"case": "curl", "n": n, "dt": sweep.base_dt, "axis": axis, "root": root,
+                       "repeats": sweep.repeats} for n in sweep.curl_segments]
+    cases = (("cantilever", sweep.cantilever_segments, ("none",)),
+             ("frequency", sweep.frequency_segments, ("none",)), ("helix", sweep.helix_segments, sweep.twists))
     for case, segments, twists in cases:
         runs = [(n, sweep.base_dt) for n in segments] + [(sweep.dt_segments, dt) for dt in sweep.dts]
-        for twist in twists:
-            for n, dt in runs:
-                k = sweep.repeats
-                rows.append(helix_row(n, dt, twist, k) if case == "helix" else
-                            cantilever_row(n, dt, k) if case == "cantilever" else frequency_row(n, dt, k))
-                if log:
-                    r = rows[-1]
-                    log(f"{case} {n} segments, dt {dt * 1e3:g} ms, {twist}, {r['precision']}: "
-                        f"wall {r['wall_s']:.2f} s")
+        specs += [{"case": case, "n": n, "dt": dt, "twist": twist, "repeats": sweep.repeats}
+                  for twist in twists for n, dt in runs]
+    return specs
+
+
+def accuracy_row(spec: dict) -> dict:
+    """The row of one spec, in this process's precision."""
+    n, dt, k = spec["n"], spec["dt"], spec["repeats"]
+    if spec["case"] == "curl":
+        return curl_row(n, dt, spec["axis"], k, spec["root"])
+    if spec["case"] == "helix":
+        return helix_row(n, dt, spec["twist"], k)
+    return cantilever_row(n, dt, k) if spec["case"] == "cantilever" else frequency_row(n, dt, k)
+
+
+def accuracy_rows(sweep: AccuracySweep, log=None, specs=None) -> list:
+    """Every row of the sweep (or of `specs`) in this process's precision, in order."""
+    rows = []
+    for spec in accuracy_specs(sweep) if specs is None else specs:
+        rows.append(accuracy_row(spec))
+        if log:
+            r = rows[-1]
+            error = "" if r["error"] is None else f"error {r['error']:.3g}, "
+            log(f"{r['case']} {spec['n']} segments, dt {spec['dt'] * 1e3:g} ms, {r['twist']}, {r['precision']}: "
+                f"{error}wall {r['wall_s']:.2f} s")
     return rows
 
 
@@ -353,33 +378,67 @@ def _in_process(precision: str, arch: str) -> bool:
     return runtime.precision() == precision and runtime.arch() == arch
 
 
+def _subprocess_worker(kind: str, precision: str, arch: str, options: list, stdin=None, log=None):
+    """`python -m taichi_hair.reports KIND --worker ...` in `precision`; its JSON answer.
+    Progress lines pass through to our stderr when logging, else are kept for the error message."""
+    cmd = [sys.executable, "-m", "taichi_hair.reports", kind, "--worker", "--arch", arch,
+           "--precision", precision, *options]
+    done = subprocess.run(cmd, input=stdin, stdout=subprocess.PIPE, stderr=None if log else subprocess.PIPE,
+                          text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{kind} worker ({precision}) failed (exit {done.returncode}):\n"
+                           f"{(done.stderr or '')[-4000:]}")
+    return json.loads(done.stdout[done.stdout.index(REPORT_MARK) + len(REPORT_MARK):])
+
+
 def _worker(precision: str, sweep: AccuracySweep, arch: str, rows: bool, reference: bool, log=None) -> dict:
     """Rows and/or the helix reference in `precision`: here if possible, else in a subprocess."""
     if _in_process(precision, arch):
         return {"rows": accuracy_rows(sweep, log) if rows else [],
                 "reference": helix_reference(sweep) if reference else None}
-    cmd = [sys.executable, "-m", "taichi_hair.reports", "accuracy", "--worker", "--arch", arch,
-           "--precision", precision, "--sweep", json.dumps(asdict(sweep))]
-    cmd += [] if rows else ["--no-rows"]
-    cmd += ["--reference"] if reference else []
-    # progress lines pass through to our stderr when logging, else are kept for the error message
-    done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None if log else subprocess.PIPE, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"accuracy worker ({precision}) failed (exit {done.returncode}):\n{(done.stderr or '')[-4000:]}")
-    return json.loads(done.stdout[done.stdout.index(REPORT_MARK) + len(REPORT_MARK):])
+    options = ["--sweep", json.dumps(asdict(sweep))] + ([] if rows else ["--no-rows"])
+    return _subprocess_worker("accuracy", precision, arch, options + (["--reference"] if reference else []), log=log)
+
+
+def accuracy_task(task: dict) -> list:
+    """On a cluster worker: the rows of task["specs"] in task["precision"], here if this
+    process has (or can take) that precision, else in a subprocess."""
+    if _in_process(task["precision"], task["arch"]):
+        return [accuracy_row(spec) for spec in task["specs"]]
+    return _subprocess_worker("accuracy", task["precision"], task["arch"],
+                              ["--specs", json.dumps(task["specs"])])["rows"]
+
+
+def _accuracy_on_cluster(client, sweep, precisions, arch, log=None):
+    """(rows, helix reference): one task per row, spread over the cluster; rows in serial order."""
+    from .cluster import map_unordered
+    tasks = [{"precision": p, "arch": arch, "specs": [spec]} for p in precisions for spec in accuracy_specs(sweep)]
+    tasks.append({"precision": "float64", "arch": arch, "specs": [helix_reference_spec(sweep)]})
+    rows = [None] * len(tasks)
+    for k, part in map_unordered(client, accuracy_task, tasks, name="accuracy"):
+        rows[k] = part[0]
+        if log:
+            log(f"{rows[k]['case']} {rows[k]['segments']} segments, dt {rows[k]['dt'] * 1e3:g} ms, "
+                f"{rows[k]['twist']}, {rows[k]['precision']}: wall {rows[k]['wall_s']:.2f} s (cluster)")
+    return rows[:-1], rows[-1]
 
 
 def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out/reports",
-                    sweep: AccuracySweep | None = None, arch: str = "cpu", log=None) -> dict:
-    """Run the accuracy sweep in each precision (one process each), compare with the references,
-    write accuracy.json and accuracy.png to out_dir and return the result dict."""
+                    sweep: AccuracySweep | None = None, arch: str = "cpu", log=None, client=None) -> dict:
+    """Run the accuracy sweep in each precision (one process each; with a dask `client`, one
+    task per row over the cluster, wall times then measured beside the other workers' load),
+    compare with the references, write accuracy.json and accuracy.png to out_dir and return the
+    result dict."""
     sweep = sweep or (QUICK_SWEEP if quick else FULL_SWEEP)
     precisions = list(dict.fromkeys(precisions))
     rows, reference = [], None
-    for p in precisions:
-        part = _worker(p, sweep, arch, rows=True, reference=p == "float64", log=log)
-        rows += part["rows"]
-        reference = part["reference"] or reference
+    if client is not None:
+        rows, reference = _accuracy_on_cluster(client, sweep, precisions, arch, log)
+    else:
+        for p in precisions:
+            part = _worker(p, sweep, arch, rows=True, reference=p == "float64", log=log)
+            rows += part["rows"]
+            reference = part["reference"] or reference
     if reference is None:
         reference = _worker("float64", sweep, arch, rows=False, reference=True, log=log)["reference"]
     for r in rows:
@@ -882,14 +941,37 @@ def _stability_worker(precision: str, cases, duration: float, arch: str, log=Non
     else in a subprocess (`python -m taichi_hair.reports stability --worker`, cases on stdin)."""
     if _in_process(precision, arch):
         return stability_rows(cases, duration, log)
-    cmd = [sys.executable, "-m", "taichi_hair.reports", "stability", "--worker", "--arch", arch,
-           "--precision", precision, "--duration", repr(duration)]
-    done = subprocess.run(cmd, input=json.dumps([asdict(c) for c in cases]), stdout=subprocess.PIPE,
-                          stderr=None if log else subprocess.PIPE, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"stability worker ({precision}) failed (exit {done.returncode}):\n"
-                           f"{(done.stderr or '')[-4000:]}")
-    return json.loads(done.stdout[done.stdout.index(REPORT_MARK) + len(REPORT_MARK):])
+    return _subprocess_worker("stability", precision, arch, ["--duration", repr(duration)],
+                              stdin=json.dumps([asdict(c) for c in cases]), log=log)
+
+
+def stability_task(task: dict) -> list:
+    """On a cluster worker: rows of task["cases"] (dicts) in task["precision"] (here, or in a
+    subprocess when this worker's Taichi runs the other precision)."""
+    cases = [StabilityCase(**c) for c in task["cases"]]
+    return _stability_worker(task["precision"], cases, task["duration"], task["arch"])
+
+
+def _stability_on_cluster(client, cases, duration, arch, log=None) -> list:
+    """Rows of `cases` in their order, computed over the cluster: chunks of one precision (a
+    worker's Taichi keeps the first precision it meets; a chunk of the other one runs in a
+    subprocess there), about four per worker, so the load evens out."""
+    from .cluster import map_unordered
+    workers = max(1, len(client.scheduler_info()["workers"]))
+    size = max(1, math.ceil(len(cases) / (4 * workers)))
+    chunks = []
+    for p in dict.fromkeys(c.precision for c in cases):
+        index = [k for k, c in enumerate(cases) if c.precision == p]
+        chunks += [index[j: j + size] for j in range(0, len(index), size)]
+    tasks = [{"precision": cases[chunk[0]].precision, "arch": arch, "duration": duration,
+              "cases": [asdict(cases[k]) for k in chunk]} for chunk in chunks]
+    rows = [None] * len(cases)
+    for j, part in map_unordered(client, stability_task, tasks, name="stability"):
+        for k, row in zip(chunks[j], part):
+            rows[k] = row
+            if log:
+                log(f"{row['name']} ({row['precision']}): {row['outcome'][:100]} ({row['wall_s']:.1f} s, cluster)")
+    return rows
 
 
 def stability_counts(rows) -> dict:
@@ -901,11 +983,12 @@ def stability_counts(rows) -> dict:
 
 
 def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: float | None = None,
-                     log=None, precision: str = "both", arch: str = "cpu") -> dict:
+                     log=None, precision: str = "both", arch: str = "cpu", client=None) -> dict:
     """Run the matrix (or `cases`) for `duration` simulated seconds each (STABILITY_DURATION);
     precision "both": each case in its own precision, one process per precision (Taichi fixes it
     at init: this one if it can, else a worker subprocess); "float32" / "float64": every case in
-    that one. Writes stability.json to out_dir and returns the result."""
+    that one. With a dask `client`, the cases are spread over its cluster instead. Writes
+    stability.json to out_dir and returns the result."""
     duration = duration or STABILITY_DURATION[bool(quick)]
     cases = list(cases if cases is not None else stability_cases(quick))
     if precision != "both":
@@ -913,11 +996,14 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
     wanted = list(dict.fromkeys(c.precision for c in cases))
     here = runtime.precision() if runtime.taichi_is_initialized() else None
     wanted.sort(key=lambda p: p != here)  # this process's precision first, no subprocess for it
-    rows = [None] * len(cases)
-    for p in wanted:
-        index = [k for k, c in enumerate(cases) if c.precision == p]
-        for k, row in zip(index, _stability_worker(p, [cases[k] for k in index], duration, arch, log)):
-            rows[k] = row
+    if client is not None:
+        rows = _stability_on_cluster(client, cases, duration, arch, log)
+    else:
+        rows = [None] * len(cases)
+        for p in wanted:
+            index = [k for k, c in enumerate(cases) if c.precision == p]
+            for k, row in zip(index, _stability_worker(p, [cases[k] for k in index], duration, arch, log)):
+                rows[k] = row
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = {"arch": arch, "precisions": wanted, "duration": duration, "quick": bool(quick), "cases": rows,
@@ -993,16 +1079,26 @@ def _log(text):
     print(text, file=sys.stderr, flush=True)
 
 
+def _cluster_client(args):
+    """A dask client for --workers / --scheduler (taichi_hair.cluster), else a context of None."""
+    from . import cluster
+    return cluster.client_from_args(args) if cluster.wanted(args) else contextlib.nullcontext()
+
+
 def _accuracy_main(args) -> int:
     if args.worker:
         runtime.init(arch=args.arch, precision=args.precision)
+        if args.specs:
+            print(REPORT_MARK + json.dumps({"rows": accuracy_rows(None, _log, json.loads(args.specs))}))
+            return 0
         sweep = AccuracySweep(**{k: tuple(v) if isinstance(v, list) else v for k, v in json.loads(args.sweep).items()})
         part = {"rows": accuracy_rows(sweep, _log) if not args.no_rows else [],
                 "reference": helix_reference(sweep) if args.reference else None}
         print(REPORT_MARK + json.dumps(part))
         return 0
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
-    result = accuracy_report(args.quick, precisions, args.out, arch=args.arch, log=_log)
+    with _cluster_client(args) as client:
+        result = accuracy_report(args.quick, precisions, args.out, arch=args.arch, log=_log, client=client)
     print(json.dumps(result, indent=1) if args.json else format_accuracy(result))
     return 0
 
@@ -1013,13 +1109,15 @@ def _stability_main(args) -> int:
         cases = [StabilityCase(**c) for c in json.loads(sys.stdin.read())]
         print(REPORT_MARK + json.dumps(stability_rows(cases, args.duration, _log)))
         return 0
-    result = stability_report(args.quick, args.out, log=_log, precision=args.precision, arch=args.arch,
-                              duration=args.duration)
+    with _cluster_client(args) as client:
+        result = stability_report(args.quick, args.out, log=_log, precision=args.precision, arch=args.arch,
+                                  duration=args.duration, client=client)
     print(json.dumps(result, indent=1) if args.json else format_stability(result))
     return 1 if result["failures"] else 0
 
 
 def _add_commands(sub):
+    from . import cluster
     acc = sub.add_parser("accuracy", help="error against run time (table, JSON and a log-log PNG)")
     acc.add_argument("--quick", action="store_true", help="smaller sweep (about a minute)")
     acc.add_argument("--precision", default="both", choices=["float32", "float64", "both"])
@@ -1030,6 +1128,8 @@ def _add_commands(sub):
     acc.add_argument("--sweep", help=argparse.SUPPRESS)
     acc.add_argument("--no-rows", action="store_true", help=argparse.SUPPRESS)
     acc.add_argument("--reference", action="store_true", help=argparse.SUPPRESS)
+    acc.add_argument("--specs", help=argparse.SUPPRESS)
+    cluster.add_arguments(acc)
     acc.set_defaults(func=_accuracy_main)
     stab = sub.add_parser("stability", help="the stability matrix: stable / substepped / refused / FAIL per case "
                                             "(exit 1 on any FAIL)")
@@ -1041,6 +1141,7 @@ def _add_commands(sub):
     stab.add_argument("--json", action="store_true", help="print JSON instead of the table")
     stab.add_argument("--duration", type=float, help="simulated seconds per case (default 0.2, quick 0.1)")
     stab.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    cluster.add_arguments(stab)
     stab.set_defaults(func=_stability_main)
     from .sagfree import add_report_parser
     add_report_parser(sub)
@@ -1065,4 +1166,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from taichi_hair import reports as _by_name  # cluster tasks must be pickled by name, not from __main__
+    sys.exit(_by_name.main())

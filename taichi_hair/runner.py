@@ -9,17 +9,20 @@ from dataclasses import dataclass
 import importlib.util
 import json
 import math
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import cluster
 from .colliders import _scalar, _vec
 from .progress import ProgressBar
 from .scene import Scene
 
 STATE_FILE = "state.npz"
 PROGRESS_FILE = "progress.json"
+GUIDES_DIR = "guides"  # frames simulated by a cluster run and not yet rendered
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -209,52 +212,137 @@ class FrameWriter:
         self.render.write_png(path, image)
 
 
-def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
-              usd=None) -> dict:
-    """Simulate, interpolate and render `script` into out_dir: frames/frame_NNNNN.png, the MP4,
-    state.npz (after every frame) and progress.json; with usd="usdc" or "usda" also
-    <scene>.usdc / .usda, animated curves (Shot.usd says which), saved after every frame before
-    the checkpoint. Returns the summary dict."""
+@dataclass
+class PreparedRun:
+    """A scene script made ready to run: its module, the scene and shot (settings and overrides
+    applied), the simulator (the script's setup() done), the dense-hair interpolator (None: draw
+    the guides) and the frame writer."""
+
+    module: object
+    scene: Scene
+    shot: Shot
+    sim: object
+    interp: object
+    writer: FrameWriter
+
+
+def prepare_run(script, *, overrides=None, settings=None, draw=True) -> PreparedRun:
+    """Load `script`, initialise Taichi in its PRECISION (once per process), build its scene and
+    shot, apply `settings` ({path: value}, see taichi_hair.settings) and then `overrides` (Shot
+    fields), and make the simulator and (draw=True) the interpolator and frame writer. Serial
+    runs, cluster clients (draw=False: they only simulate) and cluster workers all start here."""
     from .runtime import init
+    from .settings import apply_settings
     from .simulator import Simulator
-    if usd is not None:
-        _check_usd(usd)
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
     scene = _call_script(script, module, "build", Scene)
     shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
+    if settings:
+        scene, shot = apply_settings(scene, shot, settings)
     if overrides:
         shot = Shot(**{**shot.__dict__, **overrides})
-    total = shot.frames if frames is None else frames
+    sim = Simulator.from_scene(scene, dt=shot.frame_dt)
+    if callable(getattr(module, "setup", None)):
+        module.setup(scene, sim)
+    if not draw:
+        return PreparedRun(module=module, scene=scene, shot=shot, sim=sim, interp=None, writer=None)
+    interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))
+              else scalp_interpolator(scene, sim, shot.dense_strands))
+    return PreparedRun(module=module, scene=scene, shot=shot, sim=sim, interp=interp,
+                       writer=FrameWriter(shot, scene))
+
+
+def make_out_dir(out_dir) -> Path:
+    """The output folder with its frames/ subfolder (ValueError naming --out if it cannot be made)."""
     out = Path(out_dir)
     try:
         (out / "frames").mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ValueError(f"{out}: cannot create the output folder (--out): {err.strerror or err}") from None
-    sim = Simulator.from_scene(scene, dt=shot.frame_dt)
-    if callable(getattr(module, "setup", None)):
-        module.setup(scene, sim)
-    interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))
-              else scalp_interpolator(scene, sim, shot.dense_strands))
-    writer = FrameWriter(shot, scene)
-    done = _resume_point(out, sim, shot) if resume else 0
-    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, scene, resume, done) if usd else None
+    return out
+
+
+def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
+              usd=None, settings=None, on_frame=None) -> dict:
+    """Simulate, interpolate and render `script` into out_dir: frames/frame_NNNNN.png, the MP4,
+    state.npz (after every frame) and progress.json; with usd="usdc" or "usda" also
+    <scene>.usdc / .usda, animated curves (Shot.usd says which), saved after every frame before
+    the checkpoint. `settings` ({path: value}) changes the scene or shot (sweeps);
+    `on_frame(frame, sim)` is called after each simulated frame. On --resume, frames a cluster
+    run simulated but did not render (their guides in guides/) are rendered first. Returns the
+    summary dict."""
+    if usd is not None:
+        _check_usd(usd)
+    run = prepare_run(script, overrides=overrides, settings=settings)
+    shot, sim = run.shot, run.sim
+    total = shot.frames if frames is None else frames
+    out = make_out_dir(out_dir)
+    done, pending = _resume_point(out, sim, shot) if resume else (0, [])
+    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
-        bar.update(done)
+        bar.update(done - len(pending))
+        for frame in pending:
+            guides, pose = load_guides(out, frame)
+            render_frame(frame_path(out, frame), frame, guides, pose, run, times)
+            remove_guides(out, frame)
+            bar.update(1)
         for frame in range(done, total):
-            guides, hair, pose = _render_one(out, frame, shot, sim, interp, writer, times)
+            guides, pose = simulate_frame(sim, shot, times)
+            hair = render_frame(frame_path(out, frame), frame, guides, pose, run, times)
+            if on_frame is not None:
+                on_frame(frame, sim)
             if usd_writer is not None:
                 _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose)
             _checkpoint(out, sim, shot, frame + 1)
             bar.update(1)
-    video = writer.render.write_mp4(out / f"{Path(script).stem}.mp4",
-                                    (writer.render.read_png(out / "frames" / f"frame_{k:05d}.png")
-                                     for k in range(total)), fps=shot.fps)
+    video = write_video(out, script, shot, total)
     summary = _summary(script, total, done, times, video, sim)
     if usd_writer is not None:
         summary["usd"] = str(usd_writer.path)
     return summary
+
+
+def frame_path(out, frame) -> Path:
+    return Path(out) / "frames" / f"frame_{frame:05d}.png"
+
+
+def guides_path(out, frame) -> Path:
+    return Path(out) / GUIDES_DIR / f"frame_{frame:05d}.npz"
+
+
+def save_guides(out, frame, guides, pose) -> None:
+    """Write a simulated frame's guides [S, N, 3] m and head pose (R [3, 3], t [3] m) to
+    guides/frame_NNNNN.npz atomically (temporary file, then rename): what a cluster run renders
+    from, kept until the frame's PNG exists, so --resume can render it."""
+    path = guides_path(out, frame)
+    path.parent.mkdir(exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, guides=guides, rotation=pose[0], translation=pose[1])
+    os.replace(tmp, path)
+
+
+def load_guides(out, frame) -> tuple:
+    """(guides [S, N, 3], (R, t)) saved by `save_guides`."""
+    with np.load(guides_path(out, frame)) as data:
+        return data["guides"], (data["rotation"], data["translation"])
+
+
+def remove_guides(out, frame) -> None:
+    """Drop a frame's guides once its PNG is in place (and the folder once it is empty)."""
+    guides_path(out, frame).unlink(missing_ok=True)
+    try:
+        guides_path(out, frame).parent.rmdir()
+    except OSError:  # other frames still pending, or already gone
+        pass
+
+
+def write_video(out, script, shot, total) -> Path:
+    """The MP4 of frames 0..total-1 (read back from their PNGs), <out>/<scene>.mp4."""
+    import render
+    return render.write_mp4(Path(out) / f"{Path(script).stem}.mp4",
+                            (render.read_png(frame_path(out, k)) for k in range(total)), fps=shot.fps)
 
 
 def _check_usd(kind):
@@ -303,12 +391,14 @@ def _checkpoint(out, sim, shot, frames_done):
     tmp.replace(out / PROGRESS_FILE)
 
 
-def _resume_point(out, sim, shot) -> int:
-    """Frames already finished: restore the simulator from the last checkpoint, after checking
-    that the record is whole and agrees with itself and this shot (ValueError naming the file)."""
+def _resume_point(out, sim, shot) -> tuple:
+    """(frames simulated, frames of those still to render): restore the simulator from the last
+    checkpoint, after checking that the record is whole and agrees with itself and this shot
+    (ValueError naming the file). A frame below the count may lack its PNG only if its guides
+    are in guides/ (a cluster run renders behind the simulation)."""
     state = out / STATE_FILE
     if not state.exists():
-        return 0
+        return 0, []
     try:
         with np.load(state) as data:
             done, frame_dt, fps, t = (int(data["extra_frames_done"]), float(data["extra_frame_dt"]),
@@ -325,31 +415,40 @@ def _resume_point(out, sim, shot) -> int:
     if not (0 <= done and abs(t - done / fps) <= 1e-6 * max(1.0, t)):
         raise ValueError(f"{state}: inconsistent checkpoint: {done} frames done at fps {fps} is "
                          f"{done / fps:.6g} s, but its state is at t = {t:.6g} s; delete {out} to start over")
-    missing = [k for k in range(done) if not (out / "frames" / f"frame_{k:05d}.png").exists()]
+    pending = [k for k in range(done) if not frame_path(out, k).exists()]
+    missing = [k for k in pending if not guides_path(out, k).exists()]
     if missing:
         raise ValueError(f"{out}: checkpoint says {done} frames are done but frame {missing[0]} is missing; "
                          f"delete {out} to start over")
     sim.load_state(state)
-    return done
+    return done, pending
 
 
-def _render_one(out, frame, shot, sim, interp, writer, times):
+def simulate_frame(sim, shot, times) -> tuple:
+    """Step one frame; (guides [S, N, 3] m, head pose (R, t)). Appends the wall time to times."""
     start = time.perf_counter()
     sim.step(shot.steps_per_frame)
     guides = sim.positions()
     times["simulation"].append(time.perf_counter() - start)
-    start = time.perf_counter()
     rotation, translation = sim.head_transform
-    if interp is not None:
-        hair = interp.interpolate(guides, head_rotation=rotation, head_translation=translation)
+    return guides, (np.array(rotation), np.array(translation))  # copies: the simulator moves on
+
+
+def render_frame(path, frame, guides, pose, run: PreparedRun, times):
+    """Interpolate the dense hair of one frame from its guides and head pose and write its PNG at
+    `path`; returns the hair drawn. Appends interpolation and rendering wall times to times."""
+    start = time.perf_counter()
+    rotation, translation = pose
+    if run.interp is not None:
+        hair = run.interp.interpolate(guides, head_rotation=rotation, head_translation=translation)
     else:
-        counts = sim.groom.node_counts
-        hair = [guides[s, : counts[s]] for s in range(sim.n_strands)]
+        counts = run.sim.groom.node_counts
+        hair = [guides[s, : counts[s]] for s in range(run.sim.n_strands)]
     times["interpolation"].append(time.perf_counter() - start)
     start = time.perf_counter()
-    writer.write(out / "frames" / f"frame_{frame:05d}.png", frame, hair, (rotation, translation))
+    run.writer.write(path, frame, hair, (rotation, translation))
     times["rendering"].append(time.perf_counter() - start)
-    return guides, hair, (rotation, translation)
+    return hair
 
 
 def _summary(script, total, resumed_from, times, video, sim) -> dict:
@@ -361,6 +460,8 @@ def _summary(script, total, resumed_from, times, video, sim) -> dict:
 def format_summary(summary: dict) -> str:
     ms = summary["ms_per_frame"]
     usd = f" + {summary['usd']}" if summary.get("usd") else ""
+    if "workers" in summary:
+        usd += f" ({summary['frames_rendered']} frames rendered on {summary['workers']} Dask workers)"
     return (f"{summary['scene']}: {summary['frames']} frames (resumed from {summary['resumed_from']}), "
             f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}{usd}\n"
             f"median ms per frame: simulation {ms['simulation']:.1f}, interpolation "
@@ -379,13 +480,23 @@ def add_parser(sub):
     p.add_argument("--usd", nargs="?", const="usdc", default=None, choices=["usdc", "usda"],
                    help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra)")
     p.add_argument("--no-progress", action="store_true")
+    cluster.add_arguments(p)
     p.set_defaults(func=main)
 
 
+def shot_overrides(args) -> dict:
+    """The Shot fields the command line sets (--width, --height, --dense)."""
+    return {k: v for k, v in (("width", args.width), ("height", args.height),
+                              ("dense_strands", args.dense)) if v is not None}
+
+
 def main(args) -> int:
-    overrides = {k: v for k, v in (("width", args.width), ("height", args.height),
-                                   ("dense_strands", args.dense)) if v is not None}
-    summary = run_scene(args.scene, args.out, frames=args.frames, resume=args.resume,
-                        progress=not args.no_progress, overrides=overrides, usd=args.usd)
+    options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
+                   overrides=shot_overrides(args))
+    if cluster.wanted(args):
+        with cluster.client_from_args(args) as client:
+            summary = cluster.run_scene(client, args.scene, args.out, usd=args.usd, **options)
+    else:
+        summary = run_scene(args.scene, args.out, usd=args.usd, **options)
     print(format_summary(summary))
     return 0

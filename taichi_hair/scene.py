@@ -130,28 +130,12 @@ class Scene:
     twist: str = "quasistatic"
 
     def __post_init__(self):
-        if not isinstance(self.groom, Groom):
-            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(self.groom).__name__}")
+        check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
+                            wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
+                            hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
-        if self.motion is not None and not callable(self.motion):
-            raise ValueError("motion must be a callable t -> (rotation 3x3, translation [3]) or None")
-        if self.wind is not None and not isinstance(self.wind, Wind):
-            w = np.asarray(self.wind, dtype=np.float64)
-            if w.shape != (3,) or not np.all(np.isfinite(w)):
-                raise ValueError(f"wind must be a Wind, a finite 3-vector in m/s, or None; got {self.wind!r}")
-        for k, tool in enumerate(self.touch):
-            if not isinstance(tool, (Hand, Grab)):
-                raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
-        if self.hair_interaction is not None and not isinstance(self.hair_interaction, HairInteraction):
-            raise ValueError("hair_interaction must be a HairInteraction or None")
-        g = np.asarray(self.gravity, dtype=np.float64)
-        if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {self.gravity!r}")
-        _scalar("drag", self.drag, "N s/m per metre")
-        if self.twist not in TWIST_MODES:
-            raise ValueError(f"twist must be one of {TWIST_MODES}, got {self.twist!r}")
 
     def simulator_options(self) -> dict:
         """Keyword arguments of `Simulator` that this scene sets."""
@@ -160,3 +144,32 @@ class Scene:
                 "root_motion": self.motion, "touch": tuple(self.touch),
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist}
+
+
+def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag):
+    """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
+    parameter and what it allows. motion_name: what the caller calls the head motion."""
+    if not isinstance(groom, Groom):
+        raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
+    if twist not in TWIST_MODES:
+        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
+    if motion is not None and not callable(motion):
+        raise ValueError(f"{motion_name} must be a callable t -> (rotation 3x3, translation [3]) or None")
+    if not isinstance(wind, Wind) and not _finite_vector3(wind):
+        raise ValueError(f"wind must be a Wind or a finite 3-vector in m/s, got {wind!r}")
+    for k, tool in enumerate(touch):
+        if not isinstance(tool, (Hand, Grab)):
+            raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
+    if hair_interaction is not None and not isinstance(hair_interaction, HairInteraction):
+        raise ValueError(f"hair_interaction must be a HairInteraction or None, got {type(hair_interaction).__name__}")
+    if not _finite_vector3(gravity):
+        raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
+    _scalar("drag", drag, "N s/m per metre")
+
+
+def _finite_vector3(value) -> bool:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return v.shape == (3,) and bool(np.all(np.isfinite(v)))

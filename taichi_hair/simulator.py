@@ -13,24 +13,21 @@ from .groom import Groom
 from .progress import ProgressBar
 from .runtime import ensure_init, precision
 from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
-from .scene import _host_distance
+from .scene import _host_distance, check_common_inputs
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
-from .forces import Grab, Hand, Wind
-from .interaction import HairInteraction, InteractionGrid
+from .forces import Grab, Wind
+from .interaction import InteractionGrid
 from .pins import ROOT_MODES, PinTable
 from .state import COUNTERS
 from .system import RodSystem
-from .twist import TWIST_MODES
 from .validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
                    place_roots, project_once, strand_mechanical_energy)
 
-COLLIDER_TYPES = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
-
 
 
 def _vector3(name, value):
@@ -91,7 +88,7 @@ class Simulator:
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                         wind, colliders, touch, hair_interaction)
+                         wind, colliders, touch, hair_interaction, gravity)
         if root not in ROOT_MODES:
             raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
         self.groom = groom
@@ -634,28 +631,17 @@ def _check_max_substeps(value) -> int:
 
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                     wind, colliders, touch, hair_interaction):
-    if not isinstance(groom, Groom):
-        raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
-    if twist not in TWIST_MODES:
-        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
+                     wind, colliders, touch, hair_interaction, gravity):
+    check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
+                        touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag)
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
         if not (is_integer(value) and value >= 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if not (is_real(drag) and math.isfinite(drag) and drag >= 0):
-        raise ValueError(f"drag must be a finite number >= 0 N s/m per metre, got {drag!r}")
-    if root_motion is not None and not callable(root_motion):
-        raise ValueError("root_motion must be a callable t -> (rotation 3x3, translation [3]) or None")
     for k, c in enumerate(colliders):
         if not isinstance(c, COLLIDER_TYPES):
             raise ValueError(f"colliders[{k}] must be one of Sphere, Ellipsoid, Capsule, Plane, "
                              f"MeshCollider; got {type(c).__name__}")
-    for k, tool in enumerate(touch):
-        if not isinstance(tool, (Hand, Grab)):
-            raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
-    if hair_interaction is not None and not isinstance(hair_interaction, HairInteraction):
-        raise ValueError(f"hair_interaction must be a HairInteraction or None, got {type(hair_interaction).__name__}")
 
 
 def check_rigid_transform(rotation, translation):
