@@ -7,7 +7,7 @@ accuracy report (its tip is checked against the elastica in tests/test_step.py).
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 LENGTH = 0.3
 SEGMENTS = 30

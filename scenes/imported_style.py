@@ -9,7 +9,7 @@ out/assets/) so nothing is downloaded; point STYLE at your own file to animate i
 from pathlib import Path
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 STYLE = Path("out/assets/bob.hair")
 MOTION = th.Nod(amplitude_deg=20, frequency_hz=1.0, pivot=(0.0, -0.01, -0.10), ramp_s=0.3)

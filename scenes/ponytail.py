@@ -12,7 +12,7 @@ the head like the roots and the tail swings below it.
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 TIE = np.array([0.0, -0.105, -0.07])  # [m] head coordinates: a low tie, behind the occiput
 RING = 0.006  # [m] radius of the gathered bundle at the tie

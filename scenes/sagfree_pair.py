@@ -12,7 +12,7 @@ Twist "none": for round hair it is the robust choice with a sag-free rest shape 
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 PER_BLOCK = 6  # strands per (row, half)
 RAIL_DEPTH = 0.08  # [m] the roots of a block spread along y

@@ -6,7 +6,7 @@
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 
 def hand(t):

@@ -4,7 +4,7 @@
 """
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 GROOM = Path("out/assets/groom.usdc")
 MOTION = th.Turntable(period_s=4.0)

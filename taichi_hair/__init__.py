@@ -37,24 +37,24 @@ def _import_taichi_quietly():
 
 _import_taichi_quietly()
 
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
-from .forces import Grab, Hand, Wind
-from .groom import Groom
-from .guides import GuideSelection, animate_style, pick_guides
-from .hairfile import HairFile, HairFileError, read_hair, read_obj_polylines, write_hair, write_obj_polylines
-from .headmesh import HeadModel, default_head, read_obj_mesh, write_obj_mesh
-from .interpolate import Interpolator
-from .motion import Jerk, Keyframes, Nod, Shake, Still, Turntable, compose
-from .roots import sample_scalp, scalp_groom
-from .sdf import SignedDistanceGrid
-from .interaction import HairInteraction
-from .materials import Material
+from .world.colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .world.forces import Grab, Hand, Wind
+from .rods.groom import Groom
+from .hair.guides import GuideSelection, animate_style, pick_guides
+from .hair.hairfile import HairFile, HairFileError, read_hair, read_obj_polylines, write_hair, write_obj_polylines
+from .world.headmesh import HeadModel, default_head, read_obj_mesh, write_obj_mesh
+from .hair.interpolate import Interpolator
+from .world.motion import Jerk, Keyframes, Nod, Shake, Still, Turntable, compose
+from .hair.roots import sample_scalp, scalp_groom
+from .world.sdf import SignedDistanceGrid
+from .world.forces import HairInteraction
+from .rods.materials import Material
 from .runtime import init
-from .sagfree import SagFreeReport, sag_free
-from .scene import Head, Scene
-from .simulator import Simulator
-from .stability import SimulationDiverged
-from .usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
+from .hair.sagfree import SagFreeReport, sag_free
+from .world.scene import Head, Scene
+from .solver.simulator import Simulator
+from .solver.stability import SimulationDiverged
+from .hair.usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
 
 __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",

@@ -27,10 +27,12 @@ from helpers import kill_run_after
 from helpers import run_cli as run
 
 import taichi_hair as th
-from taichi_hair import cli, cluster, reports
-from taichi_hair.runner import Shot
-from taichi_hair.settings import apply_settings, parse_setting, point_name, sweep_points
-from taichi_hair.sweep import contact_sheet
+from taichi_hair.app import cli
+from taichi_hair.app import cluster
+from taichi_hair.app import reports
+from taichi_hair.app.runner import Shot
+from taichi_hair.app.settings import apply_settings, parse_setting, point_name, sweep_points
+from taichi_hair.app.sweep import contact_sheet
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = str(ROOT / "tests" / "data" / "tiny_head.py")

@@ -174,7 +174,8 @@ def test_unused_stages_are_not_compiled():
     touch code and never compiles the interaction kernels; a full scene compiles them."""
     code = textwrap.dedent("""
         import json, warnings, numpy as np, taichi_hair as th
-        from taichi_hair import step, interaction
+        from taichi_hair.solver import step
+        from taichi_hair.solver import interaction
         warnings.simplefilter("ignore")
         th.init(precision="float64")
         groom = th.Groom.straight(length=0.1, n_nodes=11, roots=[[0, 0, 0.1]], directions=[[0, 0, 1]])
@@ -220,9 +221,9 @@ def test_scene_validation_names_the_parameter():
 
 def test_default_head_mesh_keeps_hair_out_while_shaking():
     """The mesh head (distance grid) against the exact distance to its triangles."""
-    from taichi_hair.motion import Shake
-    from taichi_hair.roots import scalp_groom
-    from taichi_hair.sdf import mesh_signed_distance
+    from taichi_hair.world.motion import Shake
+    from taichi_hair.hair.roots import scalp_groom
+    from taichi_hair.world.sdf import mesh_signed_distance
     head = th.Head.default()
     model = head.model
     groom = scalp_groom(model, 40, style="wavy", length=0.2, n_nodes=24,

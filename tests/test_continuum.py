@@ -1,4 +1,4 @@
-"""The continuum Kirchhoff reference (taichi_hair/continuum.py) against closed forms, the planar
+"""The continuum Kirchhoff reference (taichi_hair/rods/continuum.py) against closed forms, the planar
 elastica of tests/references.py, Groom.curly's geometry, and its own balance equations."""
 
 import functools
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.continuum import curly_root_frame, hanging_helix, helix_strains, kirchhoff_static
+from taichi_hair.rods.continuum import curly_root_frame, hanging_helix, helix_strains, kirchhoff_static
 
 from references import cantilever_elastica_tip
 
@@ -156,7 +156,7 @@ def test_bad_input_raises(change, message):
 
 
 def test_newton_failure_raises(monkeypatch):
-    import taichi_hair.continuum as continuum
+    import taichi_hair.rods.continuum as continuum
     monkeypatch.setattr(continuum, "NEWTON_ITERATIONS", 0)  # every load step then fails
     with pytest.raises(RuntimeError, match="Newton failed"):
         kirchhoff_static(1.0, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.0),

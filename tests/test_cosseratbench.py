@@ -11,7 +11,7 @@ import taichi_hair as th  # noqa: E402
 from cosseratbench import Capability, registry  # noqa: E402
 from cosseratbench.experiment import run  # noqa: E402
 
-from taichi_hair.cosseratbench_plugin import TaichiHairSolver  # noqa: E402
+from taichi_hair.app.cosseratbench_plugin import TaichiHairSolver  # noqa: E402
 
 needs_pins = pytest.mark.skipif(not hasattr(th.Simulator, "add_pin"),
                                 reason="needs pins (Simulator.add_pin) for pinned ends")

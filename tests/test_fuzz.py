@@ -10,7 +10,7 @@ import tracemalloc
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.hairfile import HairFileError, read_hair, read_obj_polylines, write_hair
+from taichi_hair.hair.hairfile import HairFileError, read_hair, read_obj_polylines, write_hair
 
 # Each read allocates less than CASE_BYTES (the valid files are under 1 kB): the defect this
 # guards against allocated by the header's counts (1.7 GB, 4.2 s). The time bound only catches a

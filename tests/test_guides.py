@@ -9,9 +9,9 @@ import pytest
 
 import taichi_hair as th
 from helpers import rotation_matrix
-from taichi_hair.guides import GuideSelection, animate_style, pick_guides, resample_strands
-from taichi_hair.hairfile import read_hair, write_hair
-from taichi_hair.scalp import sample_scalp_roots
+from taichi_hair.hair.guides import GuideSelection, animate_style, pick_guides, resample_strands
+from taichi_hair.hair.hairfile import read_hair, write_hair
+from taichi_hair.hair.scalp import sample_scalp_roots
 
 
 def wavy_style(n=2000, seed=1, radius=0.1):
@@ -160,7 +160,7 @@ import taichi_hair as th
 th.init("cpu", "float32")
 sys.path.insert(0, "tests")
 from test_guides import wavy_style
-from taichi_hair.guides import animate_style, pick_guides
+from taichi_hair.hair.guides import animate_style, pick_guides
 sel = pick_guides(wavy_style(300), 30)
 sim, interp = animate_style(sel, th.Material(), dt=5e-4)
 dense = interp.interpolate(sim.positions())

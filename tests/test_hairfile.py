@@ -8,7 +8,7 @@ import struct
 import numpy as np
 import pytest
 
-from taichi_hair.hairfile import (HairFile, HairFileError, read_hair, read_obj_polylines,
+from taichi_hair.hair.hairfile import (HairFile, HairFileError, read_hair, read_obj_polylines,
                                   write_hair, write_obj_polylines)
 
 BITS = {"segments": 1, "points": 2, "thickness": 4, "transparency": 8, "colour": 16}

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.hairfile import HairFileError
-from taichi_hair.runner import Shot
+from taichi_hair.hair.hairfile import HairFileError
+from taichi_hair.app.runner import Shot
 
 
 # ---- 1. a root exactly on a head's surface keeps that head as a collider ----------------------
@@ -357,7 +357,7 @@ def test_float32_fine_hair_keeps_its_energy(tmp_path):
     (61 substeps) +21 % of the energy in play in 0.2 s, a tight elliptic curl under Kmoch's rule
     (196 substeps) +6.6 %. Run in float32 (a worker process), judged by the stability report's
     own rule (ENERGY_RISE_FAIL)."""
-    from taichi_hair import reports
+    from taichi_hair.app import reports
     cases = [reports.StabilityCase(name="1 mm segments", segment=0.001),
              reports.StabilityCase(name="tight elliptic curl", curl_radius=0.005, segment=0.0025,
                                    ellipticity=4.0, twist="kmoch")]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from taichi_hair.headmesh import (SEMI_AXES, HeadModel, default_head, icosphere, mesh_volume,
+from taichi_hair.world.headmesh import (SEMI_AXES, HeadModel, default_head, icosphere, mesh_volume,
                                   read_obj_mesh, write_obj_mesh)
 
 

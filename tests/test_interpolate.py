@@ -9,7 +9,7 @@ import taichi as ti
 
 from helpers import rotation_matrix
 
-from taichi_hair.interpolate import (Interpolator, ScalpChart, bench_interpolation, delaunay,
+from taichi_hair.hair.interpolate import (Interpolator, ScalpChart, bench_interpolation, delaunay,
                                      sample_scalp_roots)
 
 MODES = [dict(mode="barycentric"), dict(mode="clump"), dict(mode="blend", blend=0.5),
@@ -260,12 +260,12 @@ def test_bad_rest_shapes_raise_value_errors_naming_them(kwargs, phrase):
 IMPORT_FIRST_SCRIPT = """
 import math, sys
 import numpy as np
-import taichi_hair.interpolate  # kernels and types defined before the precision is chosen
+import taichi_hair.hair.interpolate  # kernels and types defined before the precision is chosen
 import taichi_hair as th
 th.init("cpu", "float64")
 sys.path.insert(0, "tests")
 from helpers import rotation_matrix
-from taichi_hair.interpolate import Interpolator, sample_scalp_roots
+from taichi_hair.hair.interpolate import Interpolator, sample_scalp_roots
 roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
 s = np.linspace(0.0, 0.2, 16)[None, :, None]
 guides = roots[:, None] + s * normals[:, None] + 0.01 * np.sin(40 * s) * np.array([1.0, 0.0, 0.0])
@@ -509,7 +509,7 @@ def test_bench_reports_positive_timings():
 FLOAT32_SCRIPT = """
 import numpy as np, taichi_hair as th
 th.init("cpu", "float32")
-from taichi_hair.interpolate import Interpolator, sample_scalp_roots
+from taichi_hair.hair.interpolate import Interpolator, sample_scalp_roots
 roots, normals = sample_scalp_roots(30, max_polar_deg=60.0)
 s = np.linspace(0.0, 0.25, 24)[None, :, None]
 guides = roots[:, None] + s * np.array([0.3, 0.0, -1.0]) / np.hypot(0.3, 1.0)  # into the head

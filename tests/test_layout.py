@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-# the application layer: commands that simulate and then draw frames or plots
-APP_MODULES = {"__main__", "cli", "runner", "reports", "bench", "cluster", "sweep"}
+PACKAGE = ROOT / "taichi_hair"
+# the application layer (taichi_hair/app/): commands that simulate and then draw frames or plots
+APP = PACKAGE / "app"
 
 
 def imported_packages(path: Path) -> set:
@@ -23,7 +24,7 @@ def imported_packages(path: Path) -> set:
 
 
 def test_physics_modules_do_not_import_render():
-    physics = [p for p in sorted((ROOT / "taichi_hair").rglob("*.py")) if p.stem not in APP_MODULES]
+    physics = [p for p in sorted(PACKAGE.rglob("*.py")) if APP not in p.parents and p.name != "__main__.py"]
     assert len(physics) > 20
     offenders = [p.name for p in physics if "render" in imported_packages(p)]
     assert offenders == []
@@ -48,3 +49,42 @@ def test_importing_the_package_loads_no_renderer():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "False"
+
+
+LAYERS = ["rods", "world", "solver", "hair", "app"]  # each imports only from those before it
+
+
+def test_modules_live_in_their_layer():
+    """The package shows the architecture: its folders are layers; only the package's entry
+    points and three shared helpers sit at its top."""
+    top = sorted(p.name for p in PACKAGE.glob("*.py"))
+    assert top == ["__init__.py", "__main__.py", "progress.py", "runtime.py", "validation.py"]
+    layers = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists())
+    assert layers == sorted(LAYERS)
+
+
+def layers_imported(path: Path) -> set:
+    """The layers (taichi_hair subpackages) a module inside a layer imports, lazily or not."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 2 and node.module:
+                found.add(node.module.split(".")[0])
+            elif node.level == 0 and node.module and node.module.startswith("taichi_hair."):
+                found.add(node.module.split(".")[1])
+    return found & set(LAYERS)
+
+
+def test_layers_import_only_earlier_layers():
+    bad = []
+    for rank, layer in enumerate(LAYERS):
+        for path in sorted((PACKAGE / layer).glob("*.py")):
+            later = layers_imported(path) - set(LAYERS[:rank + 1])
+            bad += [f"{layer}/{path.name} imports {sorted(later)}"] if later else []
+    assert bad == []
+
+
+def test_layer_check_detects_an_offender(tmp_path):
+    module = tmp_path / "rod_like.py"
+    module.write_text("def f():\n    from ..solver.step import advance\n    return advance\n")
+    assert layers_imported(module) == {"solver"}

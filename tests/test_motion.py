@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from taichi_hair.motion import (Jerk, Keyframes, Nod, Shake, Still, Turntable, compose,
+from taichi_hair.world.motion import (Jerk, Keyframes, Nod, Shake, Still, Turntable, compose,
                                 matrix_to_quaternion, quaternion_to_matrix)
-from taichi_hair.simulator import check_rigid_transform
+from taichi_hair.solver.simulator import check_rigid_transform
 
 from helpers import rotation_matrix
 

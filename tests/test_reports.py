@@ -10,8 +10,8 @@ import taichi_hair as th
 from references import cantilever_elastica_tip, cantilever_first_frequency, first_mode_slope
 from render.plot import Series, draw_text, loglog
 from render.video import read_png
-from taichi_hair import reports
-from taichi_hair.stability import stable_time_step
+from taichi_hair.app import reports
+from taichi_hair.solver.stability import stable_time_step
 
 TINY = reports.AccuracySweep(cantilever_segments=(12, 25, 50), frequency_segments=(12,), helix_segments=(12,),
                              curl_segments=(25, 50, 100), dts=(2e-3,), dt_segments=12, reference_factor=2,
@@ -74,7 +74,7 @@ def test_curly_case_has_both_twist_modes_with_finite_errors(accuracy):
 
 
 def test_curled_rod_converges_to_the_continuum_at_second_order(accuracy):
-    """The curl rows against the continuum Kirchhoff rod (taichi_hair.continuum): halving the
+    """The curl rows against the continuum Kirchhoff rod (taichi_hair.rods.continuum): halving the
     segment length divides the tip error by about 4, with the helix axis down and horizontal."""
     for axis in reports.CURL_AXES:
         rows = {r["segments"]: r for r in accuracy["rows"] if r["case"] == f"curl {axis}"}

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from taichi_hair.groom import Groom
-from taichi_hair.headmesh import default_head
-from taichi_hair.roots import sample_scalp, scalp_groom
-from taichi_hair.sdf import SignedDistanceGrid, mesh_signed_distance
+from taichi_hair.rods.groom import Groom
+from taichi_hair.world.headmesh import default_head
+from taichi_hair.hair.roots import sample_scalp, scalp_groom
+from taichi_hair.world.sdf import SignedDistanceGrid, mesh_signed_distance
 
 
 @pytest.fixture(scope="module")

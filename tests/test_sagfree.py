@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.runner import load_scene_module
+from taichi_hair.app.runner import load_scene_module
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 

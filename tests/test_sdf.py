@@ -6,8 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from taichi_hair.headmesh import default_head, icosphere
-from taichi_hair.sdf import SignedDistanceGrid, mesh_signed_distance
+from taichi_hair.world.headmesh import default_head, icosphere
+from taichi_hair.world.sdf import SignedDistanceGrid, mesh_signed_distance
 
 R = 0.1
 SPACING = 0.008

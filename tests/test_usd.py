@@ -16,7 +16,7 @@ pytest.importorskip("pxr", reason="usd-core is not installed: pip install 'taich
 from pxr import Gf, Usd, UsdGeom, UsdValidation, Vt  # noqa: E402
 
 import taichi_hair as th  # noqa: E402
-from taichi_hair.usd import UsdCurvesWriter  # noqa: E402
+from taichi_hair.hair.usd import UsdCurvesWriter  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 F32 = 2e-7  # float32 rounding of coordinates below 1 m (relative 6e-8) with margin
@@ -294,7 +294,7 @@ def test_pxr_is_optional(monkeypatch, tmp_path):
     code = "import sys, taichi_hair; print('pxr' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "False"  # the core never imports pxr
-    code = ("import sys; sys.modules['pxr'] = None; from taichi_hair.cli import main; "
+    code = ("import sys; sys.modules['pxr'] = None; from taichi_hair.app.cli import main; "
             f"sys.exit(main(['run', {str(ROOT / 'scenes' / 'cantilever.py')!r}, '--out', 'x', '--usd']))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert out.returncode == 2 and "taichi-hair: error: --usd: USD support needs" in out.stderr

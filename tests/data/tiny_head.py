@@ -6,7 +6,7 @@ interpolation, the head mesh and the renderer, and a process prepares the scene 
 """
 
 import taichi_hair as th
-from taichi_hair.runner import Shot
+from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:

@@ -1,0 +1,229 @@
+"""`taichi-hair bench`: simulation throughput on a reference scene (below).
+
+Scene: S guides x 32 nodes of human hair (E = 3 GPa, G = 1 GPa, radius 40 um, 1 cm segments,
+rho = 1300 kg/m^3), roots spread over a 10 cm sphere and growing outward, gravity on, no drag,
+dt = 1 ms, twist "quasistatic" (the default). One simulated frame is 1/60 s (17 steps). Every number is a median
+of repeated runs after a warm-up; compile time (the first call) is reported apart.
+"""
+
+import json
+import statistics
+import subprocess
+import sys
+import time
+import warnings
+from contextlib import contextmanager
+
+import numpy as np
+
+FRAME = 1.0 / 60.0
+NODES = 32
+SEGMENT = 0.01
+
+
+def bench_groom(n_strands: int):
+    """Straight guides on a Fibonacci sphere of radius 10 cm (upper part), growing outward."""
+    from ..rods.groom import Groom
+    k = np.arange(n_strands) + 0.5
+    z = 1.0 - 0.8 * k / n_strands  # polar caps only: hair grows on the top of the head
+    phi = np.pi * (1 + 5**0.5) * k
+    r = np.sqrt(1 - z * z)
+    normals = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    return Groom.straight(roots=0.1 * normals, directions=normals, length=SEGMENT * (NODES - 1),
+                          n_nodes=NODES)
+
+
+def _median_ms(samples):
+    return 1e3 * statistics.median(samples)
+
+
+def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "quasistatic") -> dict:
+    """Time one strand count in this process (Taichi already initialised)."""
+    from ..rods.materials import Material
+    from ..solver.simulator import Simulator
+
+    groom = bench_groom(n_strands)
+    material = Material(youngs_modulus=3e9, shear_modulus=1e9, radius=40e-6, density=1300.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sim = Simulator(groom, material, dt=1e-3, twist=twist)
+    steps = int(round(FRAME / sim.dt))
+    compile_s, frame_ms = _time_frames(sim, repeats)
+    stages = stage_breakdown(sim, stage_steps)
+    return {
+        "strands": n_strands, "nodes": NODES, "steps_per_frame": steps, "substeps": sim.substeps,
+        "compile_s": compile_s, "ms_per_frame": frame_ms,
+        "strand_node_steps_per_s": n_strands * NODES * steps / (frame_ms / 1e3),
+        "stage_ms_per_step": stages,
+    }
+
+
+def stage_breakdown(sim, n_steps: int) -> dict:
+    """Median ms per step of each stage, run as separate synchronised kernels."""
+    import taichi as ti
+    times: dict[str, list] = {}
+
+    @contextmanager
+    def timer(name):
+        ti.sync()
+        start = time.perf_counter()
+        yield
+        ti.sync()
+        times.setdefault(name, [0.0] * n_steps)[current[0]] += time.perf_counter() - start
+
+    current = [0]
+    sim.step(1, timers=timer)  # warm-up: compiles the per-stage kernels
+    times.clear()
+    for k in range(n_steps):
+        current[0] = k
+        sim.step(1, timers=timer)
+    return {name: _median_ms(values) / sim.substeps for name, values in times.items()}
+
+
+def _time_frames(sim, repeats):
+    """(compile + first step [s], median ms per 1/60 s frame) of a built simulator."""
+    import taichi as ti
+    start = time.perf_counter()
+    sim.step(1)
+    ti.sync()
+    compile_s = time.perf_counter() - start
+    steps = int(round(FRAME / sim.dt))
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        sim.step(steps)
+        ti.sync()
+        samples.append(time.perf_counter() - start)
+    return compile_s, _median_ms(samples)
+
+
+def bench_full_head(n_guides: int, repeats: int) -> dict:
+    """The project's head (mesh collider + neck/shoulder capsules) with n_guides x 32 nodes of
+    straight hair from its scalp, shaking, with and without grid hair-hair interaction."""
+    from ..world.forces import HairInteraction
+    from ..rods.materials import Material
+    from ..world.motion import Shake
+    from ..hair.roots import scalp_groom
+    from ..world.scene import Head, Scene
+    from ..solver.simulator import Simulator
+    head = Head.default()
+    groom = scalp_groom(head.model, n_guides, style="straight", length=SEGMENT * (NODES - 1),
+                        n_nodes=NODES, collider=head.colliders[0].grid, seed=0)
+    rows = []
+    for interaction in (None, HairInteraction()):
+        scene = Scene(groom=groom, head=head, material=Material(), motion=Shake(amplitude_deg=30, frequency_hz=1),
+                      hair_interaction=interaction)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sim = Simulator.from_scene(scene, dt=1e-3)
+        compile_s, frame_ms = _time_frames(sim, repeats)
+        rows.append({"guides": n_guides, "hair_interaction": interaction is not None, "substeps": sim.substeps,
+                     "compile_s": compile_s, "ms_per_frame": frame_ms,
+                     "strand_node_steps_per_s": n_guides * NODES * round(FRAME / sim.dt) / (frame_ms / 1e3)})
+    return {"scene": "default head mesh + capsules, straight combed hair, shake 30 deg at 1 Hz, dt 1 ms", "rows": rows}
+
+
+def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int, twist: str,
+              head_guides: int = 0, dense: int = 0) -> dict:
+    from ..runtime import init
+    init(arch=arch, precision=precision)
+    result = {"arch": arch, "precision": precision, "dt": 1e-3, "frame_s": FRAME, "twist": twist,
+              "scene": "human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300, 32 nodes, 1 cm segments, "
+                       "gravity on, no drag",
+              "cases": [bench_case(n, repeats, stage_steps, twist) for n in strands]}
+    if head_guides:
+        result["full_head"] = bench_full_head(head_guides, max(1, repeats // 2))
+    if dense:
+        from ..hair.interpolate import bench_interpolation
+        result["interpolation"] = bench_interpolation(n_dense=dense, n_nodes=NODES, n_guides=1000,
+                                                      repeats=repeats)
+    return result
+
+
+def format_table(result: dict) -> str:
+    from ..solver.step import STAGE_NAMES
+    stage_names = list(STAGE_NAMES)
+    lines = [f"taichi_hair bench: arch {result['arch']}, precision {result['precision']}, "
+             f"dt {result['dt'] * 1e3:g} ms, frame 1/60 s, twist {result['twist']}",
+             f"scene: {result['scene']}",
+             f"{'strands':>8} {'compile s':>9} {'ms/frame':>10} {'node-steps/s':>13} | per step, ms: "
+             + " ".join(f"{n:>14}" for n in stage_names)]
+    for c in result["cases"]:
+        stage = " ".join(f"{c['stage_ms_per_step'].get(n, 0.0):14.3f}" for n in stage_names)
+        lines.append(f"{c['strands']:8d} {c['compile_s']:9.2f} {c['ms_per_frame']:10.2f} "
+                     f"{c['strand_node_steps_per_s']:13.3e} | {'':13} {stage}")
+    lines.append("ms/frame: fused launch (all stages in one kernel per frame), median; stage columns: "
+                 "one synchronised kernel per stage, median per step (includes launch overhead)")
+    if "full_head" in result:
+        head = result["full_head"]
+        lines.append(f"full head: {head['scene']}")
+        for row in head["rows"]:
+            lines.append(f"{row['guides']:8d} guides, hair-hair {'on ' if row['hair_interaction'] else 'off'}: "
+                         f"{row['ms_per_frame']:10.1f} ms/frame  {row['strand_node_steps_per_s']:.3e} node-steps/s"
+                         f"  ({row['substeps']} substeps, compile {row['compile_s']:.1f} s)")
+    if "interpolation" in result:
+        dense = result["interpolation"]
+        lines.append("dense hair interpolation: " + ", ".join(
+            f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in dense.items()))
+    return "\n".join(lines)
+
+
+def main(args) -> int:
+    if args.cosseratbench:  # optional extra: imported only when asked for
+        try:
+            from .cosseratbench_plugin import bench_main
+        except ModuleNotFoundError as err:
+            raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
+                             f"pip install 'taichi_hair[bench]'") from None
+        return bench_main(args)
+    strands = [int(s) for s in args.strands.split(",")]
+    precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
+    results = []
+    for precision in precisions:
+        if len(precisions) == 1:
+            results.append(run_bench(args.arch, precision, strands, args.repeats, args.stage_steps,
+                                     args.twist, args.head_guides, args.dense))
+            continue
+        # one precision per process: Taichi cannot change it after init
+        cmd = [sys.executable, "-m", "taichi_hair", "bench", "--json", "--arch", args.arch,
+               "--precision", precision, "--strands", args.strands, "--repeats", str(args.repeats),
+               "--stage-steps", str(args.stage_steps), "--twist", args.twist,
+               "--head-guides", str(args.head_guides), "--dense", str(args.dense)]
+        out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+        results.extend(json.loads(out[out.index("[\n"):]))  # skip Taichi's banner line
+    if args.json:
+        print(json.dumps(results, indent=2))
+    else:
+        print("\n\n".join(format_table(r) for r in results))
+    return 0
+
+
+def add_parser(sub):
+    p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame)")
+    p.add_argument("--arch", default="cpu", help="cpu (default) or cuda where a GPU exists")
+    p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"])
+    p.add_argument("--strands", default="1,100,1000,10000", help="comma-separated guide counts")
+    p.add_argument("--repeats", type=int, default=5, help="timed frames per case (median)")
+    p.add_argument("--stage-steps", type=int, default=5, help="steps timed stage by stage")
+    p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
+    p.add_argument("--head-guides", type=int, default=1000,
+                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
+    p.add_argument("--dense", type=int, default=100_000,
+                   help="dense strands interpolated per frame on the interpolation row; 0 skips it")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
+                              "columns also pip install \"cosseratbench[pyelastica,mujoco]\" "
+                              "\"mujoco<4\")")
+    cb.add_argument("--cosseratbench", action="store_true",
+                    help="run cosseratbench's scenarios for taichi_hair and the other solvers side by "
+                         "side and print every metric and wall time in one table (float64)")
+    cb.add_argument("--experiments", default="", help="comma-separated experiments (default: all)")
+    cb.add_argument("--solvers", default="taichi_hair,pyelastica,mujoco",
+                    help="comma-separated cosseratbench solvers")
+    cb.add_argument("--n-elements", type=int, default=None,
+                    help="elements per rod (default: each experiment's)")
+    cb.add_argument("--out", default="out/cosseratbench",
+                    help="results directory (saved runs are reused while still valid)")
+    cb.add_argument("--jobs", type=int, default=1, help="runs at once (wall times read high above 1)")
+    cb.add_argument("--force", action="store_true", help="rerun saved runs")
+    p.set_defaults(func=main)

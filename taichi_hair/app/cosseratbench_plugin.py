@@ -1,0 +1,384 @@
+"""cosseratbench solver adapter: taichi_hair scored by cosseratbench's scenarios and metrics.
+
+Installed with the `bench` extra (`pip install taichi_hair[bench]`) and registered through the
+entry point group `cosseratbench.solvers` as "taichi_hair", so `cosseratbench run -s taichi_hair`
+finds it. The core package never imports this module (nor cosseratbench).
+
+How a scenario maps onto taichi_hair (one rule for every scenario, no cases per name):
+
+- Each rod is one strand of `n_elements` edges; E, G, radius, density become a round
+  `Material`. Its stress-free shape is straight (explicit zero rest curvature), untwisted.
+- The rod is inextensible and unshearable (Kmoch's model): only bending, twist, gravity,
+  loads and contact. A rod that starts stretched (`rest_arc_length`) cannot be stretched
+  here, so it starts at its unstretched length: every element keeps the direction it has in
+  the scenario and gets length L / n_elements, walked from the held end. Unstretched rods
+  whose polyline chords fall short of L / n_elements get the same treatment, so the strand's
+  length is always the scenario's unstretched length.
+- Held ends: a clamped start is taichi_hair's clamped root (node 0 and the clamp's material
+  frame held, bending from node 0), a pinned start is `root="pinned"`; a pinned end is `add_pin` on the
+  last node, a clamped end `add_pin(..., clamp=True)` on the last edge. A rod whose start is
+  free and end held is simulated from its end (nodes reversed and turned back on output). A
+  driven clamped end (`Motion`) becomes the head motion of that strand's root.
+- Loads are constant user forces on the end node, gravity is the simulator's gravity.
+- Planes and cylinders are `Plane` and `Capsule` colliders in the world with margin = the
+  rod's radius and the larger of the two Coulomb coefficients (taichi_hair's position-based
+  friction). A capsule ends in hemispheres where the cylinder has flat ends: only different
+  if a rod reaches past the cylinder's ends.
+- Dynamic scenarios run with drag 0: no dissipation beyond the model's (the twist is
+  quasistatic in Kmoch's model, which is its physics, not damping). Quasi-static scenarios
+  add mass-proportional drag at twice the scenario's slowest frequency (critical damping of
+  the slowest mode, PyElastica adapter's choice too): only the final state is scored.
+- Time step: one simulator step per recorded frame; the simulator substeps to its explicit
+  stability bound (`time_step_scale` scales its stability factor).
+- Directors: d1 of each element is the material line m1 cos a + m2 sin a, a fixed per element
+  at t = 0 so that d1 starts at `Rod.directors`: the same material line, carried by the
+  material frame.
+
+Not supported (NotImplementedError, reported "unsupported"): a rod with both ends free, an
+end that slides along an axis, two driven ends on one rod, a driven end that is not the root
+after the rule above, ends held without `Simulator.add_pin` (older taichi_hair).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from importlib.metadata import PackageNotFoundError, version
+
+import numpy as np
+
+from cosseratbench.scenario import Cylinder, End, EndCondition, Plane, Rod, Scenario
+from cosseratbench.solver import Capability, Diverged
+from cosseratbench.trajectory import Trajectory
+
+import taichi_hair as th
+from taichi_hair import runtime
+from taichi_hair.solver.stability import DEFAULT_STABILITY_FACTOR
+
+PRECISION = "float64"  # used when this adapter is the first to initialise Taichi
+
+
+def _version(package: str) -> str:
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _source_digest() -> str:
+    """A short digest of taichi_hair's own sources (this adapter apart: cosseratbench digests it),
+    so that saved runs are not reused after the simulator changes within one version number."""
+    import hashlib
+    from pathlib import Path
+
+    here = Path(__file__).resolve()
+    digest = hashlib.sha256()
+    for path in sorted(here.parent.glob("*.py")):
+        if path != here:
+            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def _ensure_taichi() -> str:
+    """Initialise Taichi (CPU, float64) unless taichi_hair already did; returns the precision.
+    A process whose Taichi was initialised by someone else cannot be used (its precision is
+    unknown to taichi_hair)."""
+    if runtime._state["precision"] is None:
+        if runtime.taichi_is_initialized():
+            raise RuntimeError("Taichi was initialised outside taichi_hair; the taichi_hair "
+                               "adapter needs taichi_hair.init() (or to initialise it itself)")
+        th.init(arch="cpu", precision=PRECISION)
+    return runtime.precision()
+
+
+class _Strand:
+    """One scenario rod as one strand: its nodes in simulation order and how ends map."""
+
+    def __init__(self, rod: Rod, n_elements: int):
+        self.rod = rod
+        if n_elements < 2:
+            raise NotImplementedError("taichi_hair needs at least 2 elements per rod")
+        start, end = rod.condition(End.START), rod.condition(End.END)
+        if start is EndCondition.FREE and end is EndCondition.FREE:
+            raise NotImplementedError("a rod with both ends free: every taichi_hair strand is "
+                                      "held at its root")
+        if rod.start_motion is not None and rod.end_motion is not None:
+            raise NotImplementedError("a rod driven at both ends: taichi_hair drives only the root")
+        # Simulate from the start unless only the end is held, or only the end is driven.
+        self.reversed = (start is EndCondition.FREE) or (rod.end_motion is not None)
+        self.root_end, self.tip_end = (End.END, End.START) if self.reversed else (End.START, End.END)
+        self.motion = rod.motion(self.root_end)
+        for end in End:
+            motion = rod.motion(end)
+            if motion is not None and motion.slides_along is not None:
+                raise NotImplementedError("an end that slides freely along an axis: taichi_hair "
+                                          "holds or drives a clamped end completely")
+        nodes = rod.nodes(n_elements)
+        d1 = rod.directors(n_elements)
+        if self.reversed:
+            nodes, d1 = nodes[::-1].copy(), d1[::-1].copy()
+        self.scenario_nodes = nodes
+        self.d1_start = d1
+        self.rest_nodes = _unstretched(nodes, rod.length)
+
+    def to_scenario(self, values: np.ndarray) -> np.ndarray:
+        """Per-node or per-element values [T, K, 3] back in the scenario's order."""
+        return values[:, ::-1] if self.reversed else values
+
+    def node_of(self, end: End) -> int:
+        return 0 if end is self.root_end else len(self.rest_nodes) - 1
+
+
+def _unstretched(nodes: np.ndarray, length: float) -> np.ndarray:
+    """The polyline with the same element directions and every element L / n long, from node 0."""
+    e = np.diff(nodes, axis=0)
+    t = e / np.linalg.norm(e, axis=1, keepdims=True)
+    steps = t * (length / len(e))
+    return np.vstack([nodes[:1], nodes[0] + np.cumsum(steps, axis=0)])
+
+
+def _motion_callable(strand: _Strand):
+    """Head motion x -> R x + t of the root: the Motion turns the end about its start point."""
+    motion, p = strand.motion, strand.rest_nodes[0]
+
+    def pose(time):
+        displacement, rotation = motion.pose(float(time))
+        return rotation, p + displacement - rotation @ p
+    return pose
+
+
+class TaichiHairSolver:
+    """taichi_hair's Simulator (inextensible Discrete Elastic Rods, Kmoch et al. 2009) as a
+    cosseratbench solver. See the module docstring for the mapping."""
+
+    name = "taichi_hair"
+    backend_version = (f"taichi_hair {_version('taichi_hair')} (sources {_source_digest()}), "
+                       f"taichi {_version('taichi')}")
+    # Inextensible and unshearable: no STRETCH, no SHEAR. No rod-rod or self contact
+    # (HairInteraction is a volumetric density/velocity model, rods still pass through each
+    # other), so neither ROD_CONTACT nor ROD_FRICTION. Obstacles: Plane and Capsule colliders.
+    capabilities = frozenset({Capability.CYLINDER_CONTACT, Capability.PLANE_CONTACT})
+
+    def __init__(self, time_step_scale: float = 1.0) -> None:
+        if not (math.isfinite(time_step_scale) and time_step_scale > 0):
+            raise ValueError(f"time_step_scale must be > 0, got {time_step_scale!r}")
+        self.stability_factor = DEFAULT_STABILITY_FACTOR * time_step_scale
+
+    # ---- what a run uses -----------------------------------------------------------------
+    @staticmethod
+    def _drag(scenario: Scenario) -> float:
+        """Drag [N s/m per metre]: none for dynamics; for quasi-static scenarios a damping rate
+        of twice the slowest frequency on the lightest rod (drag / (rho A) is the rate)."""
+        if not scenario.quasi_static:
+            return 0.0
+        rate = 2.0 * scenario.slowest_frequency()
+        return rate * min(r.material.density * r.area for r in scenario.rods)
+
+    @staticmethod
+    def _steps_per_frame(scenario: Scenario, n_frames: int) -> tuple[float, int]:
+        """The simulator's dt (one frame, or a fraction of it under 1 s) and steps per frame."""
+        interval = scenario.duration / (n_frames - 1)
+        steps = max(1, math.ceil(interval / 0.5))
+        return interval / steps, steps
+
+    def settings(self, scenario: Scenario, *, n_elements: int, n_frames: int) -> dict:
+        precision = _ensure_taichi()
+        dt, _ = self._steps_per_frame(scenario, n_frames)
+        try:
+            sim = self._build(scenario, n_elements, n_frames)[0]
+            steps = {"time_step": sim.dt / sim.substeps, "substeps": sim.substeps}
+        except NotImplementedError:  # run() raises it again, and the run is reported unsupported
+            steps = {}
+        return {
+            "integrator": "symplectic Euler + fast inextensibility projection (explicit)",
+            **steps,
+            "frame_step": dt,
+            "stability_factor": self.stability_factor,
+            "twist": "quasistatic",
+            "precision": precision,
+            "drag": self._drag(scenario),
+            "damping_rate": 2.0 * scenario.slowest_frequency() if scenario.quasi_static else 0.0,
+            "contact": "position-based, margin = rod radius" if scenario.obstacles else "none",
+        }
+
+    # ---- build and run -------------------------------------------------------------------
+    def _build(self, scenario: Scenario, n_elements: int, n_frames: int):
+        if self.stability_factor >= 2.0:
+            raise NotImplementedError(
+                f"a time step {self.stability_factor / DEFAULT_STABILITY_FACTOR:g}x the default: "
+                f"at or past the explicit step's limit, which taichi_hair refuses to run")
+        strands = [_Strand(rod, n_elements) for rod in scenario.rods]
+        roots = {s.rod.condition(s.root_end) for s in strands}
+        if len(roots) > 1:
+            raise NotImplementedError("rods held differently at their roots (clamped and pinned "
+                                      "in one scenario): taichi_hair's root condition is per simulator")
+        pinned_root = roots == {EndCondition.PINNED}
+        needs_pins = pinned_root or any(s.rod.condition(s.tip_end) is not EndCondition.FREE
+                                        for s in strands)
+        if needs_pins and not hasattr(th.Simulator, "add_pin"):
+            raise NotImplementedError("a pinned root or a held tip needs Simulator.add_pin "
+                                      "(not in this taichi_hair)")
+        if any(s.rod.condition(s.tip_end) is EndCondition.CLAMPED for s in strands):
+            raise NotImplementedError("a clamped tip: taichi_hair's clip (add_pin clamp=True) holds "
+                                      "the edge's position and direction but leaves its twist free")
+        motions = [s for s in strands if s.motion is not None]
+        if motions and len(strands) > 1:
+            raise NotImplementedError("a driven end with several rods: taichi_hair's head motion "
+                                      "moves every root together")
+
+        groom = th.Groom.from_polylines(np.stack([s.rest_nodes for s in strands]))
+        groom = groom.with_rest_curvature(np.zeros(groom.positions.shape[:2] + (4,)))  # straight
+        materials = [th.Material(youngs_modulus=s.rod.material.youngs_modulus,
+                                 shear_modulus=s.rod.material.shear_modulus,
+                                 radius=s.rod.radius, density=s.rod.material.density)
+                     for s in strands]
+        colliders = [self._collider(o, scenario) for o in scenario.obstacles]
+        dt, steps = self._steps_per_frame(scenario, n_frames)
+        options = dict(dt=dt, gravity=tuple(scenario.gravity), drag=self._drag(scenario),
+                       twist="quasistatic", colliders=colliders,
+                       stability_factor=self.stability_factor,
+                       max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
+                       root_motion=_motion_callable(motions[0]) if motions else None)
+        if pinned_root:
+            options["root"] = "pinned"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
+            sim = th.Simulator(groom, materials, **options)
+        for k, s in enumerate(strands):
+            condition = s.rod.condition(s.tip_end)
+            last = len(s.rest_nodes) - 1
+            if condition is EndCondition.PINNED:
+                sim.add_pin(k, last, s.scenario_nodes[-1])
+        loads = np.zeros((groom.n_strands, groom.max_nodes, 3))
+        for k, s in enumerate(strands):
+            for load in s.rod.loads:
+                loads[k, s.node_of(load.at)] += load.force
+        if np.any(loads):
+            sim.set_user_forces(loads)
+        return sim, strands, steps
+
+    @staticmethod
+    def _collider(obstacle, scenario: Scenario):
+        friction = max([obstacle.friction] + [r.friction for r in scenario.rods])
+        margin = max(r.radius for r in scenario.rods)
+        if len({r.radius for r in scenario.rods}) > 1:
+            raise NotImplementedError("rods of different radii against one obstacle: a "
+                                      "taichi_hair collider has one margin")
+        if isinstance(obstacle, Plane):
+            return th.Plane(point=tuple(obstacle.point), normal=tuple(obstacle.unit_normal),
+                            margin=margin, friction=friction, attached="world")
+        if isinstance(obstacle, Cylinder):
+            half = obstacle.unit_axis * obstacle.length / 2
+            centre = np.asarray(obstacle.center, dtype=float)
+            return th.Capsule(p0=tuple(centre - half), p1=tuple(centre + half),
+                              radius=obstacle.radius, margin=margin, friction=friction,
+                              attached="world")
+        raise NotImplementedError(f"an obstacle of kind {type(obstacle).__name__}")
+
+    def run(self, scenario: Scenario, *, n_elements: int, n_frames: int) -> Trajectory:
+        _ensure_taichi()
+        sim, strands, steps = self._build(scenario, n_elements, n_frames)
+        frames = sim.frames()
+        angles = []  # per strand: the fixed angle of d1 in (m1, m2), per element [n]
+        for k, s in enumerate(strands):
+            m1, m2 = frames["m1"][k, :n_elements], frames["m2"][k, :n_elements]
+            angles.append(np.arctan2((s.d1_start * m2).sum(1), (s.d1_start * m1).sum(1)))
+        positions = [[] for _ in strands]
+        directors = [[] for _ in strands]
+
+        def record():
+            x, f = sim.positions(), sim.frames()
+            if not np.all(np.isfinite(x)):
+                raise Diverged("taichi_hair produced non-finite positions", time=sim.time)
+            for k, a in enumerate(angles):
+                positions[k].append(x[k, : n_elements + 1])
+                m1, m2 = f["m1"][k, :n_elements], f["m2"][k, :n_elements]
+                d1 = np.cos(a)[:, None] * m1 + np.sin(a)[:, None] * m2
+                directors[k].append(d1 / np.linalg.norm(d1, axis=1, keepdims=True))
+
+        record()  # t = 0: the strand as it starts (a pre-stretched rod at its unstretched length)
+        try:
+            for _ in range(n_frames - 1):
+                sim.step(steps)
+                record()
+        except th.SimulationDiverged as error:
+            raise Diverged(f"taichi_hair: {error}", time=sim.time) from error
+        times = np.linspace(0.0, scenario.duration, n_frames)
+        return Trajectory(times,
+                          tuple(s.to_scenario(np.stack(p)) for s, p in zip(strands, positions)),
+                          tuple(s.to_scenario(np.stack(d)) for s, d in zip(strands, directors)))
+
+
+# ---- side by side: `taichi-hair bench --cosseratbench` ---------------------------------------
+COMPARED = ("taichi_hair", "pyelastica", "mujoco")
+
+
+def compare(experiments=(), solvers=COMPARED, *, n_elements=None, out="out/cosseratbench",
+            jobs=1, force=False, report=print) -> str:
+    """Run cosseratbench's `experiments` (default: all) for `solvers` with cosseratbench's own
+    runner (results saved under `out` and reused while still valid), and return one table of
+    every metric, observation and wall time. Solvers that are not installed get a row saying
+    so: `pip install "cosseratbench[pyelastica,mujoco]"` adds the comparison columns."""
+    import json
+    from pathlib import Path
+
+    from cosseratbench import registry, runs
+
+    out = Path(out)
+    names = list(experiments) or registry.names(registry.EXPERIMENTS)
+    loaded = [registry.load_experiment(name) for name in names]
+    missing = {}
+
+    def note(line):  # plan() reports skipped runs: saved ones, and solvers not installed
+        if line.rstrip().endswith(")") and "not installed" in line:
+            parts = line.split()
+            missing[(parts[0], parts[2])] = line[line.index("not installed"):]
+        report(line)
+
+    tasks = runs.plan(loaded, list(solvers), [], n_elements, out, force=force, report=note)
+    runs.execute(tasks, jobs=jobs, report=report)
+    blocks = []
+    for experiment in loaded:
+        summaries = {}
+        for solver in solvers:
+            path = out / experiment.name / "default" / solver / "result.json"
+            if path.exists():
+                summaries[solver] = json.loads(path.read_text())
+        metric_names = list(experiment.metrics)
+        observation_names = ["max_strain", "max_penetration", "max_rod_overlap"]
+        header = (f"{'solver':12s} {'outcome':11s} {'n':>4s} {'wall [s]':>9s} "
+                  + " ".join(f"{m:>22s}" for m in metric_names + observation_names))
+        lines = [f"{experiment.name}: {experiment.description}", header]
+        for solver in solvers:
+            summary = summaries.get(solver)
+            if summary is None:
+                why = missing.get((experiment.name, solver), "not run")
+                lines.append(f"{solver:12s} {why}")
+                continue
+            wall = summary["wall_time"]
+            row = (f"{solver:12s} {summary['outcome']:11s} {summary['n_elements']:4d} "
+                   + (f"{wall:9.2f} " if wall is not None else f"{'-':>9s} "))
+            if summary["outcome"] == "completed":
+                values = [summary["metrics"].get(m) for m in metric_names]
+                values += [summary["observations"].get(o) for o in observation_names]
+                row += " ".join(f"{v:22.3e}" if v is not None else f"{'n/a':>22s}" for v in values)
+            elif summary["outcome"] == "unsupported":
+                row += "needs " + ", ".join(summary["missing"])
+            else:
+                row += f"{summary['failure']} (t = {summary.get('diverged_at')})"
+            lines.append(row)
+        blocks.append("\n".join(lines))
+    if missing:
+        blocks.append('solvers not installed: pip install "cosseratbench[pyelastica,mujoco]" '
+                      '"mujoco<4" for the comparison columns (MuJoCo 4 dropped the composite '
+                      "cable cosseratbench 0.3 builds)")
+    return "\n\n".join(blocks)
+
+
+def bench_main(args) -> int:
+    """`taichi-hair bench --cosseratbench`: the side-by-side table (see `compare`)."""
+    experiments = [e for e in (args.experiments or "").split(",") if e]
+    solvers = [s for s in args.solvers.split(",") if s]
+    print(compare(experiments, solvers, n_elements=args.n_elements, out=args.out,
+                  jobs=args.jobs, force=args.force))
+    return 0

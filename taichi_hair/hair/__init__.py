@@ -1,0 +1,1 @@
+"""Hair on a head: roots on a scalp, dense hair from guides, guide picking, hair and USD files, the sag-free start."""

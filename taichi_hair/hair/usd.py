@@ -1,0 +1,492 @@
+"""USD hair: `UsdGeom.BasisCurves` grooms in, animated linear curves out.
+
+Needs the optional extra `usd` (`pip install 'taichi_hair[usd]'`, Pixar's usd-core). Nothing
+here imports `pxr` at module import time: the first call that needs it does, and raises an
+ImportError naming the extra when it is missing.
+
+Reading (`read_usd_curves`): every BasisCurves prim (or one by path), points taken to world
+space by the prim's local-to-world transform, a Y-up stage turned to our Z-up (x, y, z) ->
+(x, -z, y) (a +90 degree turn about x), scaled by the stage's metersPerUnit. Cubic curves
+(bezier, bspline, catmullRom; nonperiodic or pinned wrap) are evaluated to polylines of
+`n_nodes` nodes evenly spaced in the curve parameter (segment k covers parameter [k, k+1]).
+
+Writing (`UsdCurvesWriter`, `write_usd_curves`): linear, nonperiodic BasisCurves with
+time-sampled points and extent, per-node widths, a per-curve `displayColor`; stage metadata
+metersPerUnit 1, upAxis Z, timeCodesPerSecond = framesPerSecond = fps, start/end time codes;
+optionally the head as a Mesh under an Xform with a time-sampled transform. Time code c is the
+simulated time c / fps. The stage is kept in memory and after every frame exported whole to a
+temporary file renamed over the target, so the file on disk is always complete and valid.
+"""
+
+from dataclasses import dataclass
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .hairfile import HairFileError
+
+EXTRA_HINT = "pip install 'taichi_hair[usd]'"
+CUBIC_BASES = ("bezier", "bspline", "catmullRom")
+
+
+def _pxr():
+    """(Usd, UsdGeom, Sdf, Vt, Gf), or ImportError naming the extra."""
+    try:
+        from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    except ImportError as exc:
+        raise ImportError(f"USD support needs Pixar's usd-core: {EXTRA_HINT}") from exc
+    return Usd, UsdGeom, Sdf, Vt, Gf
+
+
+def usd_available() -> bool:
+    """True when `pxr` (usd-core) can be imported."""
+    try:
+        _pxr()
+    except ImportError:
+        return False
+    return True
+
+
+@dataclass(eq=False)
+class UsdCurves:
+    """Strands read from a USD file, in metres, z up.
+
+    groom: th.Groom of every strand (curves in prim order, then curve order).
+    widths: list of [N_i] arrays (m; scaled by metersPerUnit and the prim transform's mean
+        scale), one per strand, or None when no prim has widths.
+    colors: [S, 3] float per-strand displayColor (uniform; a constant colour is repeated, a
+        vertex or varying colour is taken at the root), NaN for prims without one; None when
+        no prim has one.
+    prims: [S] the prim path of each strand; curve_index: int64 [S], its curve in that prim.
+    primvars: name -> [S, ...] every other per-curve (uniform or constant) primvar found on all
+        curve prims read.
+    """
+
+    groom: object
+    widths: list | None
+    colors: np.ndarray | None
+    prims: list
+    curve_index: np.ndarray
+    primvars: dict
+
+
+# ---------------------------------------------------------------------------------------- read
+
+
+def read_usd_curves(path, prim=None, n_nodes=None, time=None) -> UsdCurves:
+    """Strands from every `UsdGeom.BasisCurves` prim of a USD file (or the one at `prim`).
+
+    n_nodes: nodes per strand for cubic curves (>= 3), evenly spaced in the curve parameter;
+        default 3 per segment plus one. Linear curves keep their points.
+    time: time code to read (default: each attribute's default value, else its earliest sample).
+    Raises HairFileError naming the file (and prim) for a missing or unreadable file, no curves,
+    a curve with fewer than 3 points (or too few for its cubic basis), non-finite points,
+    counts that do not add up, periodic curves, or an unknown basis."""
+    Usd, UsdGeom, Sdf, Vt, Gf = _pxr()
+    path = Path(path)
+    if n_nodes is not None and not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 3):
+        raise ValueError(f"n_nodes must be an integer >= 3, got {n_nodes!r}")
+    if not path.is_file():
+        raise HairFileError(f"{path}: no such file")
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Exception as exc:  # pxr.Tf.ErrorException and friends
+        raise HairFileError(f"{path}: not a readable USD file ({' '.join(str(exc).split())[:300]})") from None
+    if stage is None:
+        raise HairFileError(f"{path}: not a readable USD file")
+    code = Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(float(time))
+    scale = float(UsdGeom.GetStageMetersPerUnit(stage))
+    if not (np.isfinite(scale) and scale > 0):
+        raise HairFileError(f"{path}: metersPerUnit must be > 0, got {scale}")
+    y_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    prims = _curve_prims(stage, path, prim, UsdGeom)
+    strands, widths, colors, names, index, uniform = [], [], [], [], [], []
+    for p in prims:
+        s, w, c, pv = _read_prim(p, path, code, n_nodes, UsdGeom)
+        world = np.asarray(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(code), dtype=np.float64)
+        mean_scale = abs(np.linalg.det(world[:3, :3])) ** (1.0 / 3.0)
+        for k, pts in enumerate(s):
+            x = pts @ world[:3, :3] + world[3, :3]
+            if y_up:
+                x = np.stack([x[:, 0], -x[:, 2], x[:, 1]], axis=1)
+            strands.append(x * scale)
+            widths.append(None if w is None else w[k] * scale * mean_scale)
+            names.append(str(p.GetPath()))
+            index.append(k)
+        colors.append(c if c is not None else np.full((len(s), 3), np.nan))
+        uniform.append(pv)
+    return _assemble(path, strands, widths, colors, names, index, uniform)
+
+
+def _assemble(path, strands, widths, colors, names, index, uniform) -> UsdCurves:
+    from ..rods.groom import Groom
+    try:
+        groom = Groom.from_polylines(strands)
+    except ValueError as exc:
+        raise HairFileError(f"{path}: the curves do not make a groom: {exc} (strand s is curve "
+                            f"curve_index[s] of prim prims[s])") from None
+    has_widths = any(w is not None for w in widths)
+    widths = [np.full(len(x), np.nan) if w is None else w for x, w in zip(strands, widths)] if has_widths else None
+    colors = np.concatenate(colors)
+    colors = None if np.isnan(colors).all() else colors
+    common = set.intersection(*(set(pv) for pv in uniform)) if uniform else set()
+    primvars = {}
+    for name in sorted(common):
+        try:
+            primvars[name] = np.concatenate([pv[name] for pv in uniform])
+        except ValueError:
+            continue  # shapes differ between prims: leave it out
+    return UsdCurves(groom, widths, colors, names, np.asarray(index, dtype=np.int64), primvars)
+
+
+def _curve_prims(stage, path, prim, UsdGeom):
+    if prim is not None:
+        p = stage.GetPrimAtPath(str(prim))
+        if not p.IsValid():
+            raise HairFileError(f"{path}: no prim at {prim}")
+        if not p.IsA(UsdGeom.BasisCurves):
+            raise HairFileError(f"{path}: prim {prim} is a {p.GetTypeName() or 'typeless prim'}, "
+                                f"not BasisCurves")
+        return [p]
+    prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.BasisCurves)]
+    if not prims:
+        raise HairFileError(f"{path}: no BasisCurves prim in the file (prim: none found under "
+                            f"{stage.GetPseudoRoot().GetPath()})")
+    return prims
+
+
+def _read_prim(p, path, code, n_nodes, UsdGeom):
+    """(strands [list of [N, 3] local points], widths [list of [N]] or None, colours [C, 3] or None,
+    uniform primvars {name: [C, ...]}) for one BasisCurves prim."""
+    curves = UsdGeom.BasisCurves(p)
+    where = f"{path}: prim {p.GetPath()}"
+    points = curves.GetPointsAttr().Get(code)
+    counts = curves.GetCurveVertexCountsAttr().Get(code)
+    if points is None or counts is None or len(counts) == 0:
+        raise HairFileError(f"{where}: no points or curveVertexCounts")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(counts, dtype=np.int64)
+    if (counts < 0).any() or counts.sum() != len(points):
+        raise HairFileError(f"{where}: curveVertexCounts add up to {counts.sum()}, but there are "
+                            f"{len(points)} points")
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        curve = int(np.searchsorted(np.cumsum(counts), bad[0], side="right"))
+        raise HairFileError(f"{where}: non-finite (NaN or inf) point {bad[0]} in curve {curve}")
+    kind, basis, wrap = (str(curves.GetTypeAttr().Get()), str(curves.GetBasisAttr().Get()),
+                         str(curves.GetWrapAttr().Get()))
+    if wrap == "periodic":
+        raise HairFileError(f"{where}: periodic (closed) curves are not hair; only nonperiodic and pinned")
+    if kind == "cubic" and basis not in CUBIC_BASES:
+        raise HairFileError(f"{where}: unsupported cubic basis {basis!r}")
+    minimum = 4 if kind == "cubic" and wrap != "pinned" else 3
+    short = np.flatnonzero(counts < minimum)
+    if len(short):
+        raise HairFileError(f"{where}: curve {short[0]} has {counts[short[0]]} points; at least "
+                            f"{minimum} are needed ({kind}{' ' + basis if kind == 'cubic' else ''}, {wrap})")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    cvs = [points[a: a + n] for a, n in zip(starts, counts)]
+    widths = _vertex_values(curves.GetWidthsAttr().Get(code), curves.GetWidthsInterpolation(),
+                            counts, starts, (kind, basis, wrap), where, "widths")
+    if kind == "cubic":
+        segs = [_segments(n, basis, wrap, where, c) for c, n in enumerate(counts)]
+        nodes = [n_nodes or 3 * k + 1 for k in segs]
+        strands = [_evaluate(cv, basis, wrap, m) for cv, m in zip(cvs, nodes)]
+        if widths is not None:
+            widths = [_evaluate_widths(w, n, basis, wrap, m, interp)
+                      for (w, interp), n, m in zip(widths, counts, nodes)]
+    else:
+        strands = cvs
+        widths = None if widths is None else [w for w, _ in widths]
+    colors, uniform = _curve_primvars(p, code, counts, starts, where, UsdGeom)
+    return strands, widths, colors, uniform
+
+
+def _vertex_values(values, interpolation, counts, starts, curve_type, where, name):
+    """Per-curve ([values], interpolation) or None: constant / uniform values repeated per vertex."""
+    if values is None or len(values) == 0:
+        return None
+    values = np.asarray(values, dtype=np.float64)
+    kind, basis, wrap = curve_type
+    n = len(counts)
+    if interpolation == "constant" or len(values) == 1:
+        return [(np.full(c, values[0]), "vertex") for c in counts]
+    if interpolation == "uniform" and len(values) == n:
+        return [(np.full(c, values[k]), "vertex") for k, c in enumerate(counts)]
+    if interpolation in ("vertex", "varying") and len(values) == counts.sum() and (kind != "cubic" or interpolation == "vertex"):
+        return [(values[a: a + c], "vertex") for a, c in zip(starts, counts)]
+    if interpolation == "varying" and kind == "cubic":
+        ends = [_segments(c, basis, wrap, where, k) + 1 for k, c in enumerate(counts)]
+        if sum(ends) == len(values):
+            offs = np.concatenate([[0], np.cumsum(ends)[:-1]])
+            return [(values[a: a + e], "varying") for a, e in zip(offs, ends)]
+    raise HairFileError(f"{where}: {len(values)} {name} do not fit interpolation {interpolation!r} "
+                        f"for {n} curves of {counts.sum()} points")
+
+
+def _curve_primvars(p, code, counts, starts, where, UsdGeom):
+    """(per-curve displayColor [C, 3] or None, {name: [C, ...]} other uniform/constant primvars)."""
+    colors, uniform = None, {}
+    for pv in UsdGeom.PrimvarsAPI(p).GetPrimvars():
+        value = pv.Get(code)
+        if value is None:
+            continue
+        interp, name = pv.GetInterpolation(), pv.GetPrimvarName()
+        try:
+            value = np.asarray(value)
+        except Exception:
+            continue
+        if value.dtype == object or value.ndim == 0 or len(value) == 0:
+            continue
+        if interp == "constant":
+            per_curve = np.repeat(value[:1], len(counts), axis=0)
+        elif interp == "uniform" and len(value) == len(counts):
+            per_curve = value
+        elif interp in ("vertex", "varying") and len(value) == counts.sum():
+            per_curve = value[starts]
+        else:
+            continue
+        if name == "displayColor":
+            colors = per_curve.astype(np.float64).reshape(len(counts), 3)
+        elif interp in ("constant", "uniform"):
+            uniform[str(name)] = per_curve
+    return colors, uniform
+
+
+def _segments(n, basis, wrap, where, curve) -> int:
+    """Cubic segments of a curve of n control points."""
+    if basis == "bezier":
+        if (n - 1) % 3:
+            raise HairFileError(f"{where}: bezier curve {curve} has {n} points; a nonperiodic bezier "
+                                f"needs 3 k + 1")
+        return (n - 1) // 3
+    return n - 1 if wrap == "pinned" else n - 3
+
+
+_BASIS = {  # (4, 4) coefficient matrices: weights(t) = [1, t, t^2, t^3] @ M
+    "bezier": np.array([[1, 0, 0, 0], [-3, 3, 0, 0], [3, -6, 3, 0], [-1, 3, -3, 1]], dtype=np.float64),
+    "bspline": np.array([[1, 4, 1, 0], [-3, 0, 3, 0], [3, -6, 3, 0], [-1, 3, -3, 1]], dtype=np.float64) / 6.0,
+    "catmullRom": np.array([[0, 2, 0, 0], [-1, 0, 1, 0], [2, -5, 4, -1], [-1, 3, -3, 1]], dtype=np.float64) / 2.0,
+}
+
+
+def _evaluate(cv, basis, wrap, n_nodes):
+    """[n_nodes, D] points of the cubic curve with control points cv [n, D], evenly in parameter."""
+    cv = np.asarray(cv, dtype=np.float64)
+    if cv.ndim == 1:
+        cv = cv[:, None]
+    if wrap == "pinned" and basis != "bezier":  # phantom end points: the curve passes through both ends
+        cv = np.concatenate([2 * cv[:1] - cv[1:2], cv, 2 * cv[-1:] - cv[-2:-1]])
+    step = 3 if basis == "bezier" else 1
+    k = (len(cv) - 1) // 3 if basis == "bezier" else len(cv) - 3
+    u = np.linspace(0.0, k, n_nodes)
+    seg = np.minimum(np.floor(u).astype(np.int64), k - 1)
+    t = u - seg
+    weights = np.stack([np.ones_like(t), t, t * t, t * t * t], axis=1) @ _BASIS[basis]  # [n_nodes, 4]
+    idx = seg[:, None] * step + np.arange(4)
+    return np.einsum("nj,njd->nd", weights, cv[idx])
+
+
+def _evaluate_widths(w, n, basis, wrap, n_nodes, interpolation):
+    if interpolation == "varying":  # one width per segment end, linear in parameter
+        return np.interp(np.linspace(0.0, len(w) - 1, n_nodes), np.arange(len(w)), w)
+    return _evaluate(w, basis, wrap, n_nodes)[:, 0]
+
+
+# --------------------------------------------------------------------------------------- write
+
+
+def _strand_list(strands, what):
+    """List of [N_i, 3] float arrays from an [S, N, 3] array or a list of [N_i, 3] arrays."""
+    if isinstance(strands, np.ndarray) and strands.ndim == 3:
+        out = list(strands)
+    elif isinstance(strands, (list, tuple)):
+        out = [np.asarray(x) for x in strands]
+    else:
+        raise ValueError(f"{what} must be an [S, N, 3] array or a list of [N_i, 3] arrays, got "
+                         f"{type(strands).__name__}")
+    if not out or any(x.ndim != 2 or x.shape[1] != 3 or len(x) < 2 for x in out):
+        raise ValueError(f"{what} must hold at least one strand, each [N_i >= 2, 3]")
+    return out
+
+
+class UsdCurvesWriter:
+    """A USD file of animated linear BasisCurves, written frame by frame and crash-safe.
+
+    path: the target (`.usdc` binary, `.usda` text, `.usd` binary). fps: frames per second
+    (timeCodesPerSecond). head_mesh: optional (vertices [V, 3] m, triangles [F, 3]) written once
+    as /Head/Mesh; `write_frame(head_pose=(R, t))` animates /Head's transform.
+    Curve sets (e.g. "Guides", "Dense") become /Hair/<name>; each is defined on its first frame
+    (counts, widths [m] scalar or per node, colours [3] or [S, 3] sRGB, `define`), and every
+    later frame must keep its counts. After every `write_frame` the whole stage is exported to
+    `<stem>.tmp<suffix>` and renamed over `path`.
+    `resume=n` reopens an existing file written by this class and keeps its time codes < n
+    (later ones, from a frame that was written but not checkpointed, are dropped); it raises
+    ValueError when the file is missing or holds fewer frames."""
+
+    def __init__(self, path, fps, *, head_mesh=None, resume=None, first_time_code=1):
+        self.Usd, self.UsdGeom, self.Sdf, self.Vt, self.Gf = _pxr()
+        self.path = Path(path)
+        if self.path.suffix not in (".usd", ".usdc", ".usda"):
+            raise ValueError(f"USD path must end in .usdc, .usda or .usd, got {self.path}")
+        if not (isinstance(fps, (int, float, np.integer, np.floating)) and fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self.fps = float(fps)
+        self.first = float(first_time_code)
+        self.counts, self._half_width = {}, {}
+        layer = self.Sdf.Layer.CreateAnonymous(self.path.suffix)
+        if resume is not None:
+            self._reopen(layer, int(resume))
+        self.stage = self.Usd.Stage.Open(layer)
+        if resume is None:
+            self._setup(head_mesh)
+
+    def _setup(self, head_mesh):
+        stage, UsdGeom = self.stage, self.UsdGeom
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+        stage.SetTimeCodesPerSecond(self.fps)
+        stage.SetFramesPerSecond(self.fps)
+        stage.SetStartTimeCode(self.first)
+        stage.SetEndTimeCode(self.first)
+        root = UsdGeom.Xform.Define(stage, "/Hair")
+        stage.SetDefaultPrim(root.GetPrim())
+        if head_mesh is not None:
+            vertices, faces = (np.asarray(a) for a in head_mesh)
+            UsdGeom.Xform.Define(stage, "/Head").AddTransformOp()
+            mesh = UsdGeom.Mesh.Define(stage, "/Head/Mesh")
+            mesh.CreatePointsAttr(self.Vt.Vec3fArray.FromNumpy(vertices.astype(np.float32)))
+            mesh.CreateFaceVertexCountsAttr(self.Vt.IntArray.FromNumpy(np.full(len(faces), faces.shape[1], np.int32)))
+            mesh.CreateFaceVertexIndicesAttr(self.Vt.IntArray.FromNumpy(faces.astype(np.int32).ravel()))
+            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            mesh.CreateExtentAttr([tuple(map(float, vertices.min(0))), tuple(map(float, vertices.max(0)))])
+            mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(0.8, 0.65, 0.55)])
+
+    def _reopen(self, layer, frames_done):
+        if not self.path.is_file():
+            raise ValueError(f"{self.path}: the USD file of the run to resume is missing; delete the "
+                             f"output folder to start over")
+        try:
+            layer.TransferContent(self.Sdf.Layer.OpenAsAnonymous(str(self.path)))
+        except Exception as exc:
+            raise ValueError(f"{self.path}: not a readable USD file ({' '.join(str(exc).split())[:200]}); "
+                             f"delete the output folder to start over") from None
+        last = self.first + frames_done - 1
+        stage = self.Usd.Stage.Open(layer)
+        for prim in stage.Traverse():
+            for attr in prim.GetAttributes():
+                for code in attr.GetTimeSamples():
+                    if code > last + 1e-9:
+                        attr.ClearAtTime(code)
+            if prim.IsA(self.UsdGeom.BasisCurves):
+                counts = self.UsdGeom.BasisCurves(prim).GetCurveVertexCountsAttr().Get()
+                self.counts[prim.GetName()] = np.asarray(counts, dtype=np.int64)
+        held = max((c for p in stage.Traverse() if p.IsA(self.UsdGeom.BasisCurves)
+                    for c in self.UsdGeom.BasisCurves(p).GetPointsAttr().GetTimeSamples()), default=None)
+        if frames_done > 0 and (held is None or held < last - 1e-9):
+            raise ValueError(f"{self.path}: holds frames up to time code {held}, the checkpoint says "
+                             f"{frames_done} frames (to {last:g}) are done; delete the output folder to start over")
+        stage.SetEndTimeCode(max(last, self.first))
+
+    def define(self, name, counts, *, widths=1.5e-4, colours=(0.28, 0.17, 0.09)):
+        """Define /Hair/<name>: linear curves of `counts` nodes, widths [m] (scalar, [S] or per node
+        [sum(counts)]), colours [3] or [S, 3] (displayColor, one per curve)."""
+        counts = np.asarray(counts, dtype=np.int64)
+        n = int(counts.sum())
+        curves = self.UsdGeom.BasisCurves.Define(self.stage, f"/Hair/{name}")
+        curves.CreateTypeAttr(self.UsdGeom.Tokens.linear)
+        curves.CreateWrapAttr(self.UsdGeom.Tokens.nonperiodic)
+        curves.CreateCurveVertexCountsAttr(self.Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+        w = np.asarray(widths, dtype=np.float32)
+        w = np.broadcast_to(w, (n,)) if w.ndim == 0 else (np.repeat(w, counts) if w.shape == (len(counts),) else w)
+        if w.shape != (n,) or not np.isfinite(w).all():
+            raise ValueError(f"widths must be a finite scalar, [S] or [sum(counts)] array, got shape {w.shape}")
+        curves.CreateWidthsAttr(self.Vt.FloatArray.FromNumpy(np.ascontiguousarray(w)))
+        curves.SetWidthsInterpolation(self.UsdGeom.Tokens.vertex)
+        c = np.broadcast_to(np.asarray(colours, dtype=np.float32), (len(counts), 3))
+        curves.CreateDisplayColorPrimvar(self.UsdGeom.Tokens.uniform).Set(
+            self.Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(c)))
+        self.counts[name] = counts
+        self._half_width[name] = float(w.max()) / 2
+
+    def write_frame(self, time_code, curves, head_pose=None, save=True):
+        """Points of every curve set at `time_code`: curves {name: [S, N, 3] array or list of
+        [N_i, 3]} (m); sets not defined yet are defined with the default style. head_pose: (R [3, 3],
+        t [3]) of the head. Then the file is saved atomically (unless save=False)."""
+        code = float(time_code)
+        for name, strands in curves.items():
+            strands = _strand_list(strands, f"curves[{name!r}]")
+            counts = np.array([len(x) for x in strands], dtype=np.int64)
+            if name not in self.counts:
+                self.define(name, counts)
+            elif not np.array_equal(counts, self.counts[name]):
+                raise ValueError(f"curves[{name!r}]: the strand counts changed since the first frame")
+            points = np.ascontiguousarray(np.concatenate(strands).astype(np.float32))
+            prim = self.UsdGeom.BasisCurves(self.stage.GetPrimAtPath(f"/Hair/{name}"))
+            prim.GetPointsAttr().Set(self.Vt.Vec3fArray.FromNumpy(points), code)
+            lo, hi = points.min(0), points.max(0)
+            if name not in self._half_width:
+                self._half_width[name] = float(np.max(np.asarray(prim.GetWidthsAttr().Get(), dtype=np.float64))) / 2
+            pad = self._half_width[name]
+            prim.GetExtentAttr().Set([tuple(map(float, lo - pad)), tuple(map(float, hi + pad))], code)
+        head = self.stage.GetPrimAtPath("/Head")
+        if head_pose is not None and head.IsValid():
+            rotation, translation = (np.asarray(a, dtype=np.float64) for a in head_pose)
+            m = np.eye(4)
+            m[:3, :3], m[3, :3] = rotation.T, translation  # USD: row vectors, p' = p M
+            op = self.UsdGeom.Xformable(head).GetOrderedXformOps()[0]
+            op.Set(self.Gf.Matrix4d(m.tolist()), code)
+        self.stage.SetStartTimeCode(min(self.stage.GetStartTimeCode(), code))
+        self.stage.SetEndTimeCode(max(self.stage.GetEndTimeCode(), code))
+        if save:
+            self.save()
+
+    def save(self):
+        """Export the stage to a temporary file beside `path` and rename it over `path`."""
+        tmp = self.path.with_name(f"{self.path.stem}.tmp{self.path.suffix}")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            ok = self.stage.GetRootLayer().Export(str(tmp))
+        except Exception as exc:
+            raise HairFileError(f"{self.path}: cannot write ({' '.join(str(exc).split())[:200]})") from None
+        if not ok:
+            raise HairFileError(f"{self.path}: cannot write the USD file")
+        os.replace(tmp, self.path)
+
+
+def _ndim(x) -> int:
+    """Dimensions of x as an array; 0 for a ragged list (a frame of strands of unequal lengths)."""
+    try:
+        return np.asarray(x).ndim
+    except ValueError:
+        return 0
+
+
+def write_usd_curves(path, frames, times=None, *, fps=24, widths=1.5e-4, colours=(0.28, 0.17, 0.09),
+                     name="Strands", head_mesh=None, head_poses=None):
+    """Write animated strands as /Hair/<name> (linear BasisCurves) to a USD file.
+
+    frames: a list of frames, each an [S, N, 3] array or a list of [N_i, 3] arrays (m), the same
+        counts every frame; or one such frame (a still groom, written at time code 0 when times
+        is None). An [F, S, N, 3] array works too.
+    times: [F] seconds (time code = time * fps); default frame k at time code k + 1.
+    widths [m]: scalar, [S] or per node; colours: [3] or [S, 3]. head_mesh (V, F) and
+    head_poses [F] of (R, t): the head as /Head/Mesh with an animated transform."""
+    if isinstance(frames, np.ndarray) and frames.ndim == 3 or (
+            isinstance(frames, (list, tuple)) and frames and _ndim(frames[0]) == 2):
+        frames, times = [frames], ([0.0] if times is None else times)
+    frames = list(frames)
+    codes = (np.arange(1, len(frames) + 1, dtype=np.float64) if times is None
+             else np.asarray(times, dtype=np.float64) * fps)
+    if codes.shape != (len(frames),) or not np.isfinite(codes).all():
+        raise ValueError(f"times must be {len(frames)} finite seconds, got {times!r}")
+    if head_poses is not None and len(head_poses) != len(frames):
+        raise ValueError(f"head_poses must hold one (R, t) per frame ({len(frames)}), got {len(head_poses)}")
+    writer = UsdCurvesWriter(path, fps, head_mesh=head_mesh, first_time_code=float(codes.min()))
+    first = _strand_list(frames[0], "frames[0]")
+    writer.define(name, [len(x) for x in first], widths=widths, colours=colours)
+    for k, (frame, code) in enumerate(zip(frames, codes)):
+        writer.write_frame(code, {name: frame}, None if head_poses is None else head_poses[k], save=False)
+    writer.save()
+    return writer.path

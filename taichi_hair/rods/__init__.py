@@ -1,0 +1,1 @@
+"""Guide strands as discrete elastic rods: materials, grooms, the model and state arrays, frames, the elastic energy and forces, the twist solve, rods without stepping, and the numpy continuum reference."""

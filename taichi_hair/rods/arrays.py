@@ -1,0 +1,66 @@
+"""Kernel argument types and allocation helpers for the simulator's Taichi arrays.
+
+All simulator state lives in Taichi ndarrays indexed [strand, node] or [strand, edge]
+(structure of arrays). Kernels take them as `ti.types.ndarray` arguments, so each kernel
+compiles once per process and is reused by every strand, scene and simulator; a kernel taking
+`ti.field`s as templates would recompile for every newly allocated field (measured ~0.2 s per
+kernel on this CPU). Element type `float` follows the precision chosen by `taichi_hair.init`.
+"""
+
+import numpy as np
+import taichi as ti
+
+from ..runtime import ensure_init
+
+vec2 = ti.math.vec2
+vec3 = ti.math.vec3
+vec4 = ti.math.vec4
+
+Scalars1 = ti.types.ndarray(dtype=float, ndim=1)  # [S]
+Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # [S, N] or [S, N - 1]
+Scalars3 = ti.types.ndarray(dtype=float, ndim=3)  # grids [nx, ny, nz]
+Ints1 = ti.types.ndarray(dtype=ti.i32, ndim=1)  # [S]
+Ints2 = ti.types.ndarray(dtype=ti.i32, ndim=2)  # [S, k]
+Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)  # [S]
+Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
+Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
+Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
+Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+
+
+def scalars(shape, value=None):
+    """A float ndarray of `shape`, zero or filled from `value` (numpy-broadcastable)."""
+    ensure_init()
+    a = ti.ndarray(float, shape)
+    a.from_numpy(np.broadcast_to(np.asarray(0.0 if value is None else value, dtype=np_float()), shape).copy())
+    return a
+
+
+def ints(shape, value):
+    ensure_init()
+    a = ti.ndarray(ti.i32, shape)
+    a.from_numpy(np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=np.int32), shape)))
+    return a
+
+
+def vectors(n, shape, value=None):
+    """A float ndarray of n-vectors with index `shape`, zero or filled from `value` [*shape, n]."""
+    ensure_init()
+    a = ti.Vector.ndarray(n, float, shape)
+    full = tuple(shape) + (n,)
+    a.from_numpy(np.broadcast_to(np.asarray(0.0 if value is None else value, dtype=np_float()), full).copy())
+    return a
+
+
+def np_float():
+    """numpy dtype of the process's Taichi float."""
+    from ..runtime import precision
+    return np.float64 if precision() == "float64" else np.float32
+
+
+def like(a):
+    """A new ndarray with the same element type and shape as ndarray `a` (contents undefined)."""
+    ensure_init()
+    if a.element_shape:
+        return ti.Vector.ndarray(a.element_shape[0], float, a.shape)
+    return ti.ndarray(float, a.shape)

@@ -1,0 +1,334 @@
+"""Twist update: the free edges' material angles theta^j [rad] given the centreline.
+
+Free edges: every edge with a clamped root (the clamp frame holds angle 0, docs/model.md);
+edges 1.. with a pinned root, whose root edge keeps its own angle.
+
+Two modes (docs/model.md, "Twist"):
+- `quasistatic`: minimise the strand's energy over its free angles, E(theta) = E_bend +
+  E_twist with the centreline fixed, by Newton's method with guaranteed descent. The Hessian
+  in theta is tridiagonal per strand: each bending term depends on one angle, the twist terms
+  couple neighbours. Far from a minimum the bending diagonal can be negative; when the exact
+  Hessian is not positive definite (a pivot of its LDL^T factorisation <= 0) its bending
+  diagonal is clamped at zero, which is positive definite (the twist part is, with the clamp
+  or the held root edge), so the step is a descent direction. A backtracking line search on the
+  energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases every iteration, so
+  the iteration cannot cycle between branches, and near a minimum it is exact Newton
+  (quadratic). It ends converged (scaled residual below tol), stalled (no step changes theta
+  in this precision) or at the iteration cap; callers count stalls and refuse caps.
+- `kmoch`: Kmoch et al.'s rule for elliptic hair: m1 (the major axis, soft bending) follows the
+  curvature binormals at the edge's two end nodes (their |kb|^2-weighted mean direction, taken
+  modulo pi), choosing theta, theta + pi or theta - pi by the lowest local energy. Parallel
+  per edge (Jacobi: neighbours' angles from before the update). Round strands have no axis to
+  follow: they are solved exactly, as in `quasistatic`.
+"""
+
+import taichi as ti
+
+from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2
+from .frames import material_directors
+from .linalg import back_substitute
+from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
+                  twist_terms)
+from ..runtime import precision
+
+TWIST_MODES = ("kmoch", "quasistatic", "none")
+PI = 3.141592653589793
+MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
+ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver
+MAX_HALVINGS = 40
+# how a quasistatic solve ended: callers count stalls and refuse caps
+CONVERGED, STALLED, CAPPED = 0, 1, 2
+
+
+def rounding_epsilon() -> float:
+    """Machine epsilon of the process's float (compile-time constant in kernels)."""
+    return 2.3e-16 if precision() == "float64" else 1.2e-7
+
+
+@ti.func
+def edge_bend_theta_terms(s, j, n, first, angle, bishop_u: ti.template(), bishop_v: ti.template(),
+                          kb: ti.template(), rest_kappa: ti.template(), voronoi: ti.template(), k):
+    """Bending energy, dE/dtheta^j and d2E/dtheta^j2 of the terms that involve edge j at angle."""
+    d1, d2 = material_directors(bishop_u[s, j], bishop_v[s, j], angle)
+    energy = 0.0
+    grad = 0.0
+    hess = 0.0
+    if j >= first:  # node j sees edge j as its next edge
+        e, g, h, _ = bend_terms(kb[s, j], d1, d2, rest_kappa[s, j].zw, k.x, k.y, 0.5 / voronoi[s, j])
+        energy += e
+        grad += g
+        hess += h
+    if j + 1 <= n - 2:  # node j+1 sees edge j as its previous edge
+        e, g, h, _ = bend_terms(kb[s, j + 1], d1, d2, rest_kappa[s, j + 1].xy, k.x, k.y,
+                                0.5 / voronoi[s, j + 1])
+        energy += e
+        grad += g
+        hess += h
+    return energy, grad, hess
+
+
+@ti.func
+def theta_energy(s, n, first, bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                 theta: ti.template(), rest_kappa: ti.template(), rest_twist: ti.template(),
+                 voronoi: ti.template(), k):
+    """The part of strand s's energy [J] that depends on its material angles: every bending
+    term seen from an edge and every twist term (node 0's clamp-side bending term is constant)."""
+    total = 0.0
+    for j in range(0, n - 1):
+        e, _, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                        rest_kappa, voronoi, k)
+        total += e
+    for i in range(first, n - 1):
+        m = node_twist(s, i, theta, rest_twist)
+        total += 0.5 * k.z * m * m / voronoi[s, i]
+    return total
+
+
+@ti.func
+def assemble_newton(s, n, first, clamp_bending, bishop_u: ti.template(), bishop_v: ti.template(),
+                    kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                    rest_twist: ti.template(), voronoi: ti.template(), k, grad: ti.template(),
+                    diag: ti.template(), upper: ti.template()):
+    """Gradient and tridiagonal Hessian of theta_energy on the free edges first..n-2 (the first
+    free edge is the first bending node); clamp_bending = 1 clamps the bending diagonal at 0. Returns the
+    scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span."""
+    scale = ti.max(k.x, k.z)
+    res = 0.0
+    for j in range(first, n - 1):
+        _, gb, hb = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                          rest_kappa, voronoi, k)
+        gt, ht = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+        if clamp_bending:
+            hb = ti.max(hb, 0.0)
+        grad[s, j] = gb + gt
+        diag[s, j] = hb + ht
+        upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
+        span = 0.5 * voronoi[s, j + 1]
+        if j >= first:
+            span += 0.5 * voronoi[s, j]
+        res = ti.max(res, ti.abs(gb + gt) * span / scale)
+    return res
+
+
+@ti.func
+def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.template()):
+    """Solve strand s's symmetric tridiagonal system on rows lo..hi in place (rhs <- H^-1 rhs,
+    diag <- the pivots D of H = L D L^T). Returns (1 if every pivot is positive, else 0;
+    rhs . H^-1 rhs = sum y_j^2 / D_j, the Newton decrement squared)."""
+    positive = 1
+    decrement = 0.0
+    for j in range(lo, hi + 1):
+        if j > lo:
+            w = upper[s, j - 1] / diag[s, j - 1]
+            diag[s, j] -= w * upper[s, j - 1]
+            rhs[s, j] -= w * rhs[s, j - 1]
+        if not (diag[s, j] > 0.0):
+            positive = 0
+            break
+        decrement += rhs[s, j] * rhs[s, j] / diag[s, j]
+    if positive:
+        back_substitute(s, lo, hi, diag, upper, rhs)
+    return positive, decrement
+
+
+@ti.func
+def line_search(s, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.template(),
+                kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                rest_twist: ti.template(), voronoi: ti.template(), k, step: ti.template()):
+    """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
+    at pi/2) that decreases the energy by ARMIJO alpha decrement, or that changes it by less than
+    its rounding when the predicted decrease is below it. Returns the accepted alpha times the
+    largest |step| [rad] (0: no step found, theta unchanged)."""
+    n = hi + 2  # lo is both the first free edge and the first bending node
+    largest = 0.0
+    for j in range(lo, hi + 1):
+        largest = ti.max(largest, ti.abs(step[s, j]))
+    alpha = 1.0
+    if largest > 0.5 * PI:
+        alpha = 0.5 * PI / largest
+    applied = 0.0
+    moved = 0.0
+    slack = 64.0 * ti.static(rounding_epsilon()) * ti.abs(e0)
+    for _ in range(MAX_HALVINGS):
+        for j in range(lo, hi + 1):
+            theta[s, j] -= (alpha - applied) * step[s, j]
+        applied = alpha
+        e1 = theta_energy(s, n, lo, bishop_u, bishop_v, kb, theta, rest_kappa,
+                          rest_twist, voronoi, k)
+        predicted = alpha * decrement
+        if e1 <= e0 - ARMIJO * predicted or (predicted <= slack and e1 <= e0 + slack):
+            moved = alpha * largest
+            break
+        alpha *= 0.5
+    if moved == 0.0:
+        for j in range(lo, hi + 1):
+            theta[s, j] += applied * step[s, j]
+    return moved
+
+
+@ti.func
+def strand_twist_quasistatic(s, clamp: ti.template(), node_count: ti.template(),
+                             bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                             theta: ti.template(), rest_kappa: ti.template(),
+                             rest_twist: ti.template(), voronoi: ti.template(),
+                             stiffness: ti.template(), tol, max_iterations, grad: ti.template(),
+                             diag: ti.template(), upper: ti.template()):
+    """Newton with line search on strand s's free angles (see the module doc). Returns
+    (iterations, scaled residual when it stopped, CONVERGED / STALLED / CAPPED)."""
+    n = node_count[s]
+    k = stiffness[s]
+    first = ti.static(first_node(clamp))
+    it = 0
+    res = 0.0
+    status = CONVERGED
+    while True:
+        res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                              rest_twist, voronoi, k, grad, diag, upper)
+        if res < tol:
+            break
+        if it >= max_iterations:
+            status = CAPPED
+            break
+        e0 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
+                          voronoi, k)
+        positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
+        if not positive:  # indefinite: a descent direction from the clamped bending diagonal
+            assemble_newton(s, n, first, 1, bishop_u, bishop_v, kb, theta, rest_kappa,
+                            rest_twist, voronoi, k, grad, diag, upper)
+            positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
+        moved = line_search(s, first, n - 2, e0, decrement, bishop_u, bishop_v, kb, theta,
+                            rest_kappa, rest_twist, voronoi, k, grad)
+        it += 1
+        largest_angle = 0.0
+        for j in range(first, n - 1):
+            largest_angle = ti.max(largest_angle, ti.abs(theta[s, j]))
+        if moved <= 4.0 * ti.static(rounding_epsilon()) * (1.0 + largest_angle):
+            # nothing representable is left to gain: the rounding floor of this precision
+            res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                  rest_twist, voronoi, k, grad, diag, upper)
+            if res >= tol:
+                status = STALLED
+            break
+    return it, res, status
+
+
+@ti.func
+def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.template(),
+                     kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                     rest_twist: ti.template(), voronoi: ti.template(), k):
+    """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are."""
+    u = bishop_u[s, j]
+    v = bishop_v[s, j]
+    # squaring (ku + i kv) doubles the angle, so directions equal modulo pi average properly
+    # and each node weighs in with |kb|^2
+    doubled = vec2(0.0)
+    for node in ti.static(range(2)):
+        kbn = kb[s, j + node]
+        ku = kbn.dot(u)
+        kv = kbn.dot(v)
+        doubled += vec2(ku * ku - kv * kv, 2.0 * ku * kv)
+    best = theta[s, j]
+    switched = 0
+    if doubled.norm() > MIN_CURVATURE_SQ:
+        eta = 0.5 * ti.atan2(doubled.y, doubled.x)
+        base = eta + PI * ti.round((theta[s, j] - eta) / PI)
+        best_energy = 0.0
+        for c in ti.static(range(3)):
+            angle = base + (c - 1) * PI
+            e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
+                                            voronoi, k)
+            e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
+            if c == 0 or e < best_energy:
+                best = angle
+                best_energy = e
+                switched = 1 if c != 1 else 0  # c = 1 is the branch nearest the old angle
+    return best, switched
+
+
+@ti.func
+def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bishop_u: ti.template(),
+                       bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
+                       rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
+                       stiffness: ti.template(), theta_new: ti.template()):
+    """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles).
+    Returns how many edges switched branch (theta +- pi from the branch nearest the old angle)."""
+    n = node_count[s]
+    first = ti.static(first_node(clamp))
+    switches = 0
+    for j in range(first, n - 1):
+        angle, switched = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                           rest_twist, voronoi, stiffness[s])
+        theta_new[s, j] = angle
+        switches += switched
+    for j in range(first, n - 1):
+        theta[s, j] = theta_new[s, j]
+    return switches
+
+
+@ti.func
+def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: ti.template(),
+                       voronoi: ti.template(), gj):
+    """Twist energy of nodes j and j+1 with theta^j = angle and the neighbours' angles as they are."""
+    energy = 0.0
+    if j >= first:
+        m = angle - theta[s, j] + node_twist(s, j, theta, rest_twist)
+        energy += gj * m * m * 0.5 / voronoi[s, j]
+    if j + 1 <= n - 2:
+        m = theta[s, j + 1] - angle - rest_twist[s, j + 1]
+        energy += gj * m * m * 0.5 / voronoi[s, j + 1]
+    return energy
+
+
+@ti.func
+def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+                        bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                        theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
+                        rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
+                        force: ti.template()):
+    """force[s] -= sum_j dE/dtheta^j dtheta_kmoch^j/dx: with Kmoch's rule the angles are a
+    function of the centreline, so the force of E(x, theta_kmoch(x)) needs this term on top of
+    the fixed-angle gradient (docs/model.md, "Kmoch's rule and energy consistency"). Elliptic
+    strands only (round ones are solved to dE/dtheta = 0). With eta^j = arg(S_j) / 2,
+    S_j = sum_n z_n^2, z_n = kb_n . (u^j + i v^j) over the edge's end nodes n in {j, j+1}:
+    d eta^j = sum_n d kb_n . Im(z_n (u + i v) / S_j) - d Psi^j, the last term because the angle
+    is measured from the Bishop vector u^j, which turns with the holonomy."""
+    k = stiffness[s]
+    if k.x != k.y:
+        n = node_count[s]
+        first = ti.static(first_node(clamp))
+        suffix = 0.0
+        for r in range(n - 1 - first):
+            j = n - 2 - r
+            _, gb, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                             rest_kappa, voronoi, k)
+            gt, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+            g = gb + gt
+            suffix += g  # sum over free edges >= j: the coefficient of grad psi_j
+            e0, e1 = node_edges(s, j, x, root_t)
+            add_holonomy_gradient(s, j, e0, e1, kb[s, j], suffix, force)
+            u = bishop_u[s, j]
+            v = bishop_v[s, j]
+            total = vec2(0.0)
+            for node in ti.static(range(2)):
+                z = vec2(kb[s, j + node].dot(u), kb[s, j + node].dot(v))
+                total += vec2(z.x * z.x - z.y * z.y, 2.0 * z.x * z.y)
+            norm_sq = total.dot(total)
+            if ti.sqrt(norm_sq) > MIN_CURVATURE_SQ:  # else the rule keeps theta: no derivative
+                for node in ti.static(range(2)):
+                    i = j + node
+                    if i <= n - 2:  # the tip has no curvature
+                        z = vec2(kb[s, i].dot(u), kb[s, i].dot(v))
+                        q = vec2(z.x * total.x + z.y * total.y, z.y * total.x - z.x * total.y) / norm_sq
+                        a0, a1 = node_edges(s, i, x, root_t)
+                        add_kb_gradient(s, i, a0, a1, kb[s, i], -g * (q.x * v + q.y * u), force)
+
+
+@ti.kernel
+def kmoch_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: Vec3s2,
+                 bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
+                 rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
+                 force: Vec3s2):
+    """strand_kmoch_forces for every strand (added to force [S, N] N). One thread per strand."""
+    for s in range(x.shape[0]):
+        strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+                            rest_kappa, rest_twist, voronoi, stiffness, force)

@@ -1,0 +1,120 @@
+"""Contact stage: push nodes out of colliders and hands, with friction. Runs inside the fast
+projection (see step.strand_project), alternating with the inextensibility solve."""
+
+import taichi as ti
+
+from ..rods.arrays import vec3
+from ..world.colliders import analytic_distance, grid_distance, sphere_distance
+from ..world.forces import HAND
+
+
+@ti.func
+def to_head(head: ti.template(), k, p):
+    """R^T (p - t): world point p [m] in head coordinates at head pose k."""
+    q = p - head[k, 3]
+    return q[0] * head[k, 0] + q[1] * head[k, 1] + q[2] * head[k, 2]
+
+
+@ti.func
+def from_head(head: ti.template(), k, p):
+    """R p + t: head-coordinate point p [m] in the world at head pose k."""
+    return vec3(head[k, 0].dot(p), head[k, 1].dot(p), head[k, 2].dot(p)) + head[k, 3]
+
+
+@ti.func
+def resolve_contact(p, p_prev, d, n, margin, friction):
+    """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin
+    and shrink its slip along the surface since p_prev by friction x push depth (Coulomb)."""
+    push = margin - d
+    moved = p + push * n
+    slip = moved - p_prev
+    tangential = slip - slip.dot(n) * n
+    length = tangential.norm()
+    if length > 1e-12:
+        moved -= ti.min(1.0, friction * push / length) * tangential
+    return moved
+
+
+@ti.func
+def collider_frame(on_head, head: ti.template(), now, prev, p, p_prev):
+    """(p, p_prev) in the collider's frame: head coordinates at poses now / prev, or the world."""
+    local = p
+    local_prev = p_prev
+    if on_head:
+        local = to_head(head, now, p)
+        local_prev = to_head(head, prev, p_prev)
+    return local, local_prev
+
+
+def root_keeps_collider(root_distance, margin):
+    """The rule strand_collide applies on the device, for host-side checks: a strand collides
+    with a collider unless its root lies inside it by more than the collider's margin [m]."""
+    return root_distance >= -margin
+
+
+@ti.func
+def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.template(), md: ti.template(),
+                   st: ti.template(), dr: ti.template(), co: ti.template()):
+    """Resolve every free node of strand s against the colliders (co: analytic table, optional
+    distance grid; fl.mesh), and the hands (fl.touch). Head-attached shapes are handled in head
+    coordinates so their friction sees the motion relative to the moving head (head poses now /
+    prev); hands sit at tool_points[tool_now] (tool_prev before the step). A collider that holds
+    the strand's own root deeper than its margin (signed distance < -margin) is skipped for
+    that strand: pushing its nodes out would fight the held root every step (a groom rooted
+    inside a neck capsule, say). A root on the surface or within the margin keeps the collider;
+    the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
+    node's step displacement dx becomes x - x_prev. Returns the number of pushes."""
+    pushes = 0
+    x, x_prev, dx, head = ti.static(st.x, st.x_prev, st.dx, dr.head)  # aliases
+    root = x[s, 0]
+    for c in range(n_analytic):
+        on_head = co.params[c][3] > 0.5
+        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
+        d_root, _ = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0],
+                                      root_local)
+        if d_root >= -co.params[c][1]:  # see root_keeps_collider
+            for i in range(md.node_count[s]):
+                if md.inv_mass[s, i] > 0.0:
+                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1],
+                                             co.params[c][0], local)
+                    if d < co.params[c][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2])
+                        x[s, i] = local
+                        if on_head:
+                            x[s, i] = from_head(head, now, local)
+                        dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
+                        pushes += 1
+    if ti.static(fl.mesh):
+        # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
+        on_head = co.sdf_meta[2][0] > 0.5
+        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
+        d_root, _ = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], root_local)
+        if d_root >= -co.sdf_meta[1][1]:  # see root_keeps_collider
+            for i in range(md.node_count[s]):
+                if md.inv_mass[s, i] > 0.0:
+                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
+                    if d < co.sdf_meta[1][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
+                        x[s, i] = local
+                        if on_head:
+                            x[s, i] = from_head(head, now, local)
+                        dx[s, i] = x[s, i] - x_prev[s, i]
+                        pushes += 1
+    if ti.static(fl.touch):
+        for k in range(dr.tools.shape[0]):
+            if ti.cast(dr.tools[k][0], ti.i32) == HAND:
+                # in the hand's frame: its own motion over the step does not count as slip
+                centre = dr.tool_points[tool_now, k]
+                for i in range(md.node_count[s]):
+                    if md.inv_mass[s, i] > 0.0:
+                        local = x[s, i] - centre
+                        local_prev = x_prev[s, i] - dr.tool_points[tool_prev, k]
+                        d, n = sphere_distance(local, dr.tools[k][1])
+                        if d < dr.tools[k][2]:
+                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
+                                                               dr.tools[k][3])
+                            dx[s, i] = x[s, i] - x_prev[s, i]
+                            pushes += 1
+    return pushes

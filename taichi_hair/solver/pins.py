@@ -1,0 +1,247 @@
+"""Pins and clips: any node held at a point, any edge clamped, in the world or on the head.
+
+A pin gives its node infinite mass (inv_mass 0): symplectic Euler leaves it alone, the fast
+projection cannot move it, contacts and hair-hair interaction skip it, and after the Euler
+update it is put at its target, exactly as the root node is put on the head. A clip
+(clamp=True) pins the edge (node, node + 1): both nodes, the second at the first's target plus
+the edge vector the edge had when it was clipped (position and direction held; the edge's
+material angle is not: the twist solve still treats it as free).
+
+Decisions (see also `Simulator.add_pin`):
+- Targets move linearly in time over the next `Simulator.step(n)` call: a target set by
+  `move_pin` is reached at the end of that call, every substep of it placing the node at its
+  share of the way (so move_pin once per frame gives the node the velocity (new - old) / frame
+  time). Head-attached targets are interpolated in head coordinates and carried by the head
+  pose of every substep, like the root nodes.
+- Adding a pin at the node's current position does not move it; the next step gives the node
+  the pin's velocity (zero for a still pin): a moving node is stopped, which can only take
+  energy out. Releasing a pin restores the node's mass; it keeps the velocity of its last step.
+- Total energy counts a pinned node as the free node it was (its kinetic and gravitational
+  energy), so adding and releasing a still pin leaves the total unchanged.
+- An edge whose two nodes are both held (a clip, two neighbouring pins, a pin on node 1 beside
+  the root) is prescribed, not projected: the pins set its length (step.strand_project).
+- Pins are not part of `save_state` checkpoints: scene scripts add them in `setup`.
+
+Device data, [S, N] per node: pin_mode (0 free, 1 world target, 2 head target), pin_start and
+pin_end [m] (the targets at the start and end of the current step call, world or head
+coordinates by mode). They are Taichi ndarrays: adding or releasing pins never recompiles.
+"""
+
+import numpy as np
+import taichi as ti
+
+from ..rods import arrays
+from .collisions import from_head
+from ..rods.frames import parallel_transport
+
+FREE, WORLD, HEAD = 0, 1, 2
+ATTACH = {"world": WORLD, "head": HEAD}
+ROOT_MODES = ("clamped", "pinned", "edge")
+
+
+@ti.func
+def strand_place_pins(s, fraction, node_count: ti.template(), pin_mode: ti.template(),
+                      pin_start: ti.template(), pin_end: ti.template(), head: ti.template(), now,
+                      x: ti.template()):
+    """Put strand s's pinned nodes at their targets `fraction` of the way from start to end
+    (head targets carried by head pose `now`)."""
+    for i in range(node_count[s]):
+        mode = pin_mode[s, i]
+        if mode != FREE:
+            p = pin_start[s, i] + fraction * (pin_end[s, i] - pin_start[s, i])
+            if mode == HEAD:
+                p = from_head(head, now, p)
+            x[s, i] = p
+
+
+@ti.func
+def strand_carry_root_frame(s, x: ti.template(), root_t: ti.template(), root_u: ti.template()):
+    """Pinned root: the root edge's reference (t, u) becomes its current tangent and its Bishop
+    vector u^0, parallel-transported in time from the edge's previous direction (DER's free
+    first edge), with the same operations as frames.strand_frames, so u^0 is unchanged. (It is
+    recomputed, not read back from bishop_u[s, 0]: inside the fused kernel's step loop Taichi
+    1.7 served that read from a value cached before the frames stage wrote it.)"""
+    t = (x[s, 1] - x[s, 0]).normalized()
+    u = parallel_transport(root_u[s], root_t[s], t)
+    root_u[s] = (u - u.dot(t) * t).normalized()
+    root_t[s] = t
+
+
+def _index(name, value, upper):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if not 0 <= value < upper:
+        raise ValueError(f"{name} must be in [0, {upper - 1}], got {value}")
+    return int(value)
+
+
+def _targets(name, value, count):
+    """[count, 3] float64 targets from one 3-vector or [count, 3], or ValueError naming `name`."""
+    t = np.asarray(value, dtype=np.float64)
+    if t.shape == (3,):
+        t = np.broadcast_to(t, (count, 3))
+    if t.shape != (count, 3):
+        shapes = "[3]" if count == 1 else f"[3] or [{count}, 3]"
+        raise ValueError(f"{name} must be a 3-vector in metres, shape {shapes}, got shape {list(t.shape)}")
+    if not np.all(np.isfinite(t)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return np.array(t)
+
+
+class PinTable:
+    """The pins of one simulator: a host-side table (records, per-node modes and targets) and
+    its device copy, uploaded before a step when something changed.
+
+    inv_mass: the model's [S, N] ndarray, changed in place (0 on held nodes); free_inv_mass:
+    an ndarray copy of the unpinned masses (energies count pinned nodes as free ones)."""
+
+    def __init__(self, model, root: str):
+        self.model = model
+        self.node_counts = np.asarray(model.groom.node_counts)
+        self.first_free = 2 if root == "edge" else 1  # the nodes riding on the head
+        self.free_inv = model.inv_mass.to_numpy().astype(np.float64)
+        self.free_inv_mass = arrays.scalars(self.free_inv.shape, self.free_inv)
+        self.inv = self.free_inv.copy()  # host copy of model.inv_mass with the pins in
+        shape = self.free_inv.shape
+        self.owner = np.full(shape, -1, dtype=np.int64)
+        self.mode = np.zeros(shape, dtype=np.int32)
+        self.start = np.zeros(shape + (3,))
+        self.end = np.zeros(shape + (3,))
+        self.records = {}
+        self.next_id = 0
+        self.device = None  # (mode, start, end) ndarrays once a pin was added
+        self.dirty = False
+
+    @property
+    def active(self) -> bool:
+        return bool(self.records)
+
+    # ---- edits ----------------------------------------------------------------------
+    def add(self, strands, nodes, targets, clamp, attach, positions, head):
+        """Validate everything, then add the pins; returns their ids [K]. positions: world
+        node positions [S, N, 3]; head: (R, t), the pose those positions belong to."""
+        if attach not in ATTACH:
+            raise ValueError(f"attach must be 'world' or 'head', got {attach!r}")
+        if not isinstance(clamp, (bool, np.bool_)):
+            raise ValueError(f"clamp must be True or False, got {clamp!r}")
+        held = self._checked_nodes(strands, nodes, bool(clamp))
+        count = len(held)
+        rotation, translation = head
+        here = positions[[s for s, _ in held], [i for _, i in held]]
+        target = here if targets is None else _targets("target", targets, count)
+        ids = []
+        for k, (s, i) in enumerate(held):
+            offset = positions[s, i + 1] - positions[s, i] if clamp else None
+            if attach == "head":
+                if targets is None:
+                    target[k] = rotation.T @ (target[k] - translation)
+                if clamp:
+                    offset = rotation.T @ offset
+            pid = self.next_id
+            self.next_id += 1
+            self.records[pid] = {"strand": s, "node": i, "clamp": bool(clamp), "attach": attach,
+                                 "target": target[k].copy(), "offset": offset}
+            for node in (i, i + 1) if clamp else (i,):
+                self.owner[s, node] = pid
+                self.mode[s, node] = ATTACH[attach]
+                self.inv[s, node] = 0.0
+            self._write(pid, target[k], both=True)
+            ids.append(pid)
+        self.dirty = True
+        return np.array(ids, dtype=np.int64)
+
+    def _checked_nodes(self, strands, nodes, clamp):
+        strands = np.atleast_1d(np.asarray(strands, dtype=object))
+        nodes = np.atleast_1d(np.asarray(nodes, dtype=object))
+        if strands.ndim != 1 or nodes.ndim != 1:
+            raise ValueError("strand and node must be integers or 1-D sequences of integers")
+        if len(nodes) == 1 and len(strands) > 1:
+            nodes = np.repeat(nodes, len(strands))
+        if len(strands) != len(nodes):
+            raise ValueError(f"strand and node must have the same length, got {len(strands)} and "
+                             f"{len(nodes)}")
+        held, seen = [], set()
+        for s, i in zip(strands, nodes):
+            s = _index("strand", s, len(self.node_counts))
+            n = int(self.node_counts[s])
+            if isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) and -n <= i < 0:
+                i = int(i) + n  # from the strand's end: -1 is the tip
+            last = n - 2 if clamp else n - 1
+            i = _index("node", i, last + 1)
+            if i < self.first_free:
+                raise ValueError(f"node {i} of strand {s} rides on the head already (the root); "
+                                 f"node must be >= {self.first_free}")
+            for node in (i, i + 1) if clamp else (i,):
+                if self.owner[s, node] >= 0 or (s, node) in seen:
+                    other = self.owner[s, node]
+                    raise ValueError(f"node {node} of strand {s} is already held"
+                                     f"{f' by pin {other}' if other >= 0 else ' (listed twice)'}")
+                seen.add((s, node))
+            held.append((s, i))
+        return held
+
+    def move(self, pin_ids, targets):
+        ids = self._known(pin_ids)
+        target = _targets("target", targets, len(ids))
+        for k, pid in enumerate(ids):
+            self.records[pid]["target"] = target[k].copy()
+            self._write(pid, target[k], both=False)
+        self.dirty = True
+
+    def release(self, pin_ids):
+        for pid in self._known(pin_ids):
+            r = self.records.pop(pid)
+            s, i = r["strand"], r["node"]
+            for node in (i, i + 1) if r["clamp"] else (i,):
+                self.owner[s, node] = -1
+                self.mode[s, node] = FREE
+                self.inv[s, node] = self.free_inv[s, node]
+        self.dirty = True
+
+    def _known(self, pin_ids):
+        ids = [pin_ids] if np.ndim(pin_ids) == 0 else list(np.asarray(pin_ids).ravel())
+        out = []
+        for pid in ids:
+            if isinstance(pid, (bool, np.bool_)) or not isinstance(pid, (int, np.integer)) \
+                    or int(pid) not in self.records:
+                raise ValueError(f"pin_id {pid!r} is not a pin of this simulator "
+                                 f"(live ids: {sorted(self.records)[:10]})")
+            out.append(int(pid))
+        if len(set(out)) != len(out):
+            raise ValueError("pin_id lists a pin twice")
+        return out
+
+    def _write(self, pid, target, both):
+        """Set the end target (and the start too when `both`: a new pin does not move)."""
+        r = self.records[pid]
+        s, i = r["strand"], r["node"]
+        rows = [(i, target)] + ([(i + 1, target + r["offset"])] if r["clamp"] else [])
+        for node, p in rows:
+            self.end[s, node] = p
+            if both:
+                self.start[s, node] = p
+
+    def listing(self) -> list[dict]:
+        return [{"id": pid, "strand": r["strand"], "node": r["node"], "target": r["target"].copy(),
+                 "clamp": r["clamp"], "attach": r["attach"]} for pid, r in sorted(self.records.items())]
+
+    # ---- device side ----------------------------------------------------------------
+    def upload(self):
+        """Device copies of what changed since the last step (called before each step)."""
+        if not self.dirty:
+            return
+        f = arrays.np_float()
+        if self.device is None:
+            shape = self.mode.shape
+            self.device = (arrays.ints(shape, 0), arrays.vectors(3, shape), arrays.vectors(3, shape))
+        self.device[0].from_numpy(self.mode)
+        self.device[1].from_numpy(self.start.astype(f))
+        self.device[2].from_numpy(self.end.astype(f))
+        self.model.inv_mass.from_numpy(self.inv.astype(f))
+        self.dirty = False
+
+    def settle(self):
+        """After a completed step call: the targets reached become the next call's start."""
+        if self.active and not np.array_equal(self.start, self.end):
+            self.start[...] = self.end
+            self.dirty = True

@@ -1,0 +1,658 @@
+"""The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (step.py) under a control
+(head, air, colliders, touch, pins), with the stability bound and its substeps, rollback on
+blow-up, and checkpoints. Units: SI throughout.
+"""
+
+import math
+import warnings
+
+import numpy as np
+
+from ..rods import arrays
+from ..rods.groom import Groom
+from ..progress import ProgressBar
+from ..runtime import ensure_init, precision
+from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
+from ..world.scene import COLLIDERS as COLLIDER_TYPES
+from .collisions import root_keeps_collider
+from ..world.scene import _host_distance, check_common_inputs
+from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
+from ..world.forces import Grab, Wind
+from .interaction import InteractionGrid
+from .pins import ROOT_MODES, PinTable
+from ..rods.state import COUNTERS
+from .system import RodSystem
+from ..validation import is_integer, is_real
+from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
+                   place_roots, project_once, strand_mechanical_energy)
+
+DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
+INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
+
+
+def _vector3(name, value):
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
+    return v
+
+
+def _positive(name, value, unit, upper=math.inf):
+    if not (is_real(value) and 0 < value < upper and math.isfinite(value)):
+        bound = f" and < {upper:g}" if upper < math.inf else ""
+        raise ValueError(f"{name} must be > 0{bound} {unit}, got {value!r}")
+    return float(value)
+
+
+class Simulator:
+    """Guide strands of `groom` made of `material` (one Material or one per strand).
+
+    dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
+        with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
+        strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
+    wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
+    twist: "quasistatic" (default: Newton on dE/dtheta = 0 per strand, the energy-consistent
+        choice), "kmoch" (Kmoch et al.'s rule for elliptic hair: cheaper, but not an energy
+        minimum, so it can feed energy in; see the accuracy and stability reports) or "none"
+        (material angles stay as they are).
+    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
+        in float32 the rounding floor of the scene's coordinates if larger, see
+        `default_projection_tol`); projection_iterations caps it.
+    twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ) ending the quasistatic solve
+        (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
+    root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
+        `set_root_transform`.
+    colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
+    touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
+    max_speed [m/s]: a node faster than this counts as a blow-up.
+    max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
+        bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
+    root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
+        the head-carried root frame from node 0 on, docs/model.md "The clamp at the root"),
+        "pinned" (node 0 rides on the head, node 1 is free: the strand swings freely about its
+        root node. The root edge's reference director is parallel-transported in time from its
+        previous direction each step; its material angle theta^0 stays held in that frame (the
+        twist solve keeps it fixed), so the joint is free in bending and holds spin about the
+        edge: a universal joint, not a ball joint), or "edge" (the first edge rides rigidly on
+        the head and bending starts at node 1: the strand bends like one half an edge shorter,
+        a first-order error; the model before the clamp moved to the root node, kept to compare).
+    Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
+    """
+
+    def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
+                 drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "quasistatic",
+                 projection_tol: float | None = None, projection_iterations: int = 100,
+                 twist_tol: float | None = None, twist_iterations: int = 100, root_motion=None,
+                 colliders=(), touch=(), hair_interaction=None, strict: bool = False,
+                 max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
+                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS):
+        ensure_init()
+        _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
+                         wind, colliders, touch, hair_interaction, gravity)
+        if root not in ROOT_MODES:
+            raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
+        self.groom = groom
+        self.dt = _positive("dt", dt, "s", upper=1.0)
+        self.twist = twist
+        self.twist_iterations = twist_iterations
+        twist_tol = None if twist_tol is None else _positive("twist_tol", twist_tol, "")
+        self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
+                              twist_iterations=twist_iterations)
+        self.model, self.state = self.rods.model, self.rods.state
+        self._pins = PinTable(self.model, root)
+        self.touch = tuple(touch)
+        self.root_motion = root_motion
+        self.stable_dt = stable_time_step(groom, self.model.materials, drag,
+                                          _positive("stability_factor", stability_factor, "", upper=2.0),
+                                          kmoch=twist == "kmoch")
+        self.stable_dt = min([self.stable_dt] + [_grab_bound(self.model, g, stability_factor)
+                                                 for g in self.touch if isinstance(g, Grab)])
+        self.control, facts = build_control(_vector3("gravity", gravity),
+                                            wind if isinstance(wind, Wind) else _vector3("wind", wind),
+                                            drag, tuple(colliders), self.touch,
+                                            _positive("max_speed", max_speed, "m/s"))
+        if facts["wind"] and drag == 0:
+            raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
+                             "(human hair in air: about 1e-4 to 1e-3)")
+        self.stable_dt = min(self.stable_dt, wind_bound(groom, _max_air_speed(wind), stability_factor))
+        self.max_substeps = _check_max_substeps(max_substeps)
+        self._bound_inputs = (drag, wind, stability_factor)
+        self.substeps = self._substeps_for(strict)
+        self.plan = StepPlan(
+            external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
+            wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
+            mesh=facts["mesh"], touch=facts["touch"],
+            projection_tol=_positive("projection_tol", default_projection_tol(groom) if projection_tol is None else projection_tol,
+                                     "", upper=1.0),
+            projection_iterations=projection_iterations,
+            twist_tol=self.rods.twist_tol,
+            twist_iterations=twist_iterations, root=root)
+        self._bundles = self.rods.bundles
+        self._bundles.bind(self.control)
+        self.time = 0.0
+        self.steps_taken = 0
+        self._snapshot = None
+        self._potential = arrays.scalars((groom.n_strands,))
+        self._head = self._head_prev = (np.eye(3), np.zeros(3))
+        if root_motion is not None:
+            self._place_groom(*self._head_at(0.0))
+        self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
+        if self.plan.contacts:
+            self._resolve_initial_contacts()
+            self._tighten_bound_to_start(strict, stability_factor)
+        if self.substeps > 1:
+            warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
+                          f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
+                          f"springs and the starting shape): each step runs {self.substeps} substeps of "
+                          f"{self.dt / self.substeps:.3g} s", RuntimeWarning, stacklevel=2)
+        self.update_frames()
+        self.interaction = None if hair_interaction is None else InteractionGrid(
+            hair_interaction, groom, self.model, self.state, self._head[1])
+
+    @classmethod
+    def from_scene(cls, scene, dt: float = 1e-3, **options) -> "Simulator":
+        """The simulator of a `Scene`: its groom, material, head colliders and motion, wind,
+        touch tools and hair interaction; `options` go to the constructor (twist, drag, ...)."""
+        return cls(scene.groom, scene.material, dt=dt, **{**scene.simulator_options(), **options})
+
+    def _substeps_for(self, strict: bool) -> int:
+        """Substeps per step so that each is within the bound (the caller warns once), or raise."""
+        if self.dt <= self.stable_dt:
+            return 1
+        if strict:
+            raise ValueError(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
+                             f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, "
+                             f"grab springs and the starting shape); lower dt or pass strict=False to "
+                             f"substep automatically")
+        substeps = math.ceil(self.dt / self.stable_dt)
+        if substeps > self.max_substeps:
+            raise ValueError(f"dt = {self.dt:.3g} s would need {substeps} substeps of at most "
+                             f"{self.stable_dt:.3g} s, more than max_substeps = {self.max_substeps}; the "
+                             f"stability bound is set by {self._bound_cause()}. Change that, lower dt, or "
+                             f"raise max_substeps")
+        return substeps
+
+    def _bound_cause(self) -> str:
+        """Which input sets stable_dt, in words naming the parameter (for the substep refusal).
+        Drag is named when it at least halves the bending bound; the start shape when contacts
+        tightened the bound below every input's own."""
+        drag, wind, factor = self._bound_inputs
+        materials, kmoch = self.model.materials, self.twist == "kmoch"
+        bend = stable_time_step(self.groom, materials, 0.0, factor, kmoch=kmoch)
+        with_drag = stable_time_step(self.groom, materials, drag, factor, kmoch=kmoch)
+        plain = stable_time_step(self.groom, materials, drag, factor) if kmoch else with_drag
+        if with_drag < 0.5 * bend:
+            candidates = [(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)")]
+        else:
+            rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
+                    f"bending bound {plain:.3g} s)" if with_drag < plain else "")
+            candidates = [(with_drag, "the material's bending stiffness (youngs_modulus, radius) over the "
+                                      "shortest segment and the sharpest rest turn of the groom" + rule)]
+        air = _max_air_speed(wind)
+        candidates.append((wind_bound(self.groom, air, factor),
+                           f"the wind (fastest air {air:.3g} m/s must not move a node a segment per step)"))
+        candidates += [(_grab_bound(self.model, g, factor), f"touch[{k}].stiffness = {g.stiffness:g} N/m")
+                       for k, g in enumerate(self.touch) if isinstance(g, Grab)]
+        bound, cause = min(candidates, key=lambda c: c[0])
+        if bound > 1.01 * self.stable_dt:
+            return "the shape the colliders left the groom in at the start (sharp bends)"
+        return cause
+
+    # ---- head transform -----------------------------------------------------------------
+    def _head_at(self, t: float):
+        return check_rigid_transform(*self.root_motion(t))
+
+    def _place_groom(self, rotation, translation):
+        """Put the whole groom rigidly at the head's pose (used for the initial pose only)."""
+        self._head = self._head_prev = (rotation, translation)
+        x = self.groom.positions @ rotation.T + translation
+        self.state.x.from_numpy(x.astype(arrays.np_float()))
+        self._orient_roots(reference=True)
+
+    def _orient_roots(self, reference=None):
+        """Head poses loaded; root reference frames at the current head pose (root nodes
+        untouched), unless the root is pinned: its reference is carried in time by the steps
+        (reference=True forces it, for the initial pose)."""
+        load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
+        st, md = self.state, self.model
+        if reference or (reference is None and not self.plan.pinned_root):
+            place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
+
+    def _colliders_holding_roots(self, colliders) -> list[tuple[int, int]]:
+        """(strand, collider index) pairs whose root starts inside the collider by more than its
+        margin: the contact stage skips them (collisions.root_keeps_collider), so say so once.
+        Head-attached colliders see the roots in head coordinates, world ones at the start pose."""
+        head_roots = self.groom.positions[:, 0]
+        world_roots = self.positions()[:, 0]
+        skipped = []
+        for k, c in enumerate(colliders):
+            roots = head_roots if c.attached == "head" else world_roots
+            depth = _host_distance(c, roots)
+            skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
+        if skipped:
+            kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})
+            warnings.warn(f"{len(skipped)} strand root(s) (first: strand {skipped[0][0]}) lie inside "
+                          f"{', '.join(kinds)} by more than its margin: those strands do not collide with "
+                          f"it (sim.skipped_colliders lists the pairs); move the roots onto the surface "
+                          f"to keep the hair out", RuntimeWarning, stacklevel=3)
+        return skipped
+
+    def _resolve_initial_contacts(self):
+        """Move groomed nodes that start inside a collider's margin out of it before the first
+        step, so the correction does not turn into a velocity kick (the push over one substep
+        would read as metres per second)."""
+        st, c = self.state, self.control
+        load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
+        load_tools(c, self.touch, np.full(2, self.time))
+        st.x_prev.copy_from(st.x)
+        # A strand groomed into the head may need many more iterations than one step allows;
+        # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
+        for _ in range(INITIAL_PROJECTION_ROUNDS):
+            st.residuals.fill(0.0)
+            project_once(self._bundles, self.plan, c)
+            residual = st.residuals.to_numpy()[:, 0]
+            if residual.max() <= self.plan.projection_tol:
+                break
+        stuck = np.flatnonzero(~(residual <= FAILED_ABOVE))
+        if len(stuck):
+            warnings.warn(f"{len(stuck)} strand(s) (first: {stuck[0]}) start inside a collider and "
+                          f"could not be moved out with their edge lengths kept (relative residual "
+                          f"{residual[stuck].max():.3g}); check the groom against the head",
+                          RuntimeWarning, stacklevel=3)
+        st.x_prev.copy_from(st.x)
+        self._reset_counters()
+
+    def _tighten_bound_to_start(self, strict, stability_factor):
+        """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
+        x = self.positions()
+        start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
+        bound = stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
+                                 kmoch=self.twist == "kmoch")
+        if bound < self.stable_dt:
+            self.stable_dt = bound
+            self.substeps = self._substeps_for(strict)
+
+    @property
+    def head_transform(self):
+        """(R [3, 3], t [3] m): the head's current pose."""
+        return self._head
+
+    def set_root_transform(self, rotation, translation) -> None:
+        """Move the head: the roots follow the rigid transform x -> R x + t of the groom's
+        rest pose. Their reference frames turn at once; the root nodes get there during the next
+        step (with the velocity that implies). rotation: 3x3 proper rotation; translation [m]."""
+        self._head = check_rigid_transform(rotation, translation)
+        self._orient_roots()
+        self.update_frames()
+
+    # ---- pins and clips (taichi_hair/solver/pins.py) -----------------------------------------
+    def add_pin(self, strand, node, target=None, *, clamp: bool = False, attach: str = "world"):
+        """Pin node `node` of strand `strand` to a point (position only; node -1 is the tip).
+        target [3] m: default the node's current position (no jump); in world coordinates
+        (attach="world") or head coordinates (attach="head": the pin rides on the head's rigid
+        transform, like the roots). clamp=True clips the edge (node, node + 1): both nodes held,
+        target the node's position, the edge keeping its current direction (in the world or on
+        the head). Returns the pin's int id. Bulk: strand and node as 1-D sequences of K (node
+        may be one int for all) and target None or [K, 3] add K pins at once and return an int64
+        array of K ids. Held already (root nodes, other pins) or out of range: ValueError."""
+        ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev)
+        return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
+
+    def move_pin(self, pin_id, target) -> None:
+        """New target [3] m (a clip's node position; in the pin's attach coordinates): the node
+        gets there at the end of the next `step` call, moving linearly in time over it. Bulk:
+        pin_id a sequence of K ids and target [K, 3]."""
+        self._pins.move(pin_id, target)
+
+    def release_pin(self, pin_id) -> None:
+        """Free the pin's node(s) from the next step on; they keep their last step's velocity.
+        pin_id: an id or a sequence of ids; an unknown id is a ValueError."""
+        self._pins.release(pin_id)
+
+    def pins(self) -> list[dict]:
+        """The live pins: dicts of id, strand, node, target ([3] m, the latest target in attach
+        coordinates), clamp, attach."""
+        return self._pins.listing()
+
+    # ---- stepping -----------------------------------------------------------------------
+    def step(self, n: int = 1, timers=None) -> None:
+        """Advance n steps of dt (each maybe substepped). On blow-up the state is rolled back to
+        where this call began and SimulationDiverged is raised. With `timers` (a callable
+        name -> context manager that synchronises), or with hair interaction, every stage runs
+        as its own kernel; otherwise many substeps run in one fused launch."""
+        if not (is_integer(n) and n >= 0):
+            raise ValueError(f"n must be an integer >= 0, got {n!r}")
+        n = int(n)
+        self._take_snapshot()
+        self._pins.upload()
+        h = self.dt / self.substeps
+        remaining = total = n * self.substeps
+        staged = timers is not None or self.interaction is not None
+        while remaining > 0:
+            count = 1 if staged else min(remaining, MAX_STEPS_PER_LAUNCH)
+            moving = self._load_launch(h, count)
+            self.control.time = self.time
+            # pins move linearly over the whole call (pins.py)
+            pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total)
+                    if self._pins.active else None)
+            if staged:
+                kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
+                           self.interaction.stage if self.interaction is not None else None, pins)
+            else:
+                advance(self._bundles, self.plan, self.control, h, count, moving, pins)
+            bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
+            if np.any(bad >= 0):
+                self._diverged(h, bad)
+            self.time += count * h
+            self._head_prev = self._head
+            remaining -= count
+        self.steps_taken += n
+        self._pins.settle()
+
+    def _load_launch(self, h, count) -> bool:
+        """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
+        times = self.time + h * np.arange(count + 1)
+        if self.root_motion is not None:
+            poses = [self._head_prev] + [self._head_at(t) for t in times[1:]]
+            self._head = poses[-1]
+            load_poses(self.control, np.stack([_pose(*p) for p in poses]))
+        else:
+            load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
+        load_tools(self.control, self.touch, times)
+        return self.root_motion is not None and count > 1
+
+    def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
+        """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
+        stderr. A blow-up leaves the state at the end of the last healthy chunk."""
+        if not (is_real(seconds) and seconds >= 0 and math.isfinite(seconds)):
+            raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
+        total = int(round(seconds / self.dt))
+        per_chunk = max(1, int(round(chunk / self.dt)))
+        with ProgressBar(total * self.dt, "simulating", enabled=progress) as bar:
+            done = 0
+            while done < total:
+                k = min(per_chunk, total - done)
+                self.step(k)
+                done += k
+                bar.update(k * self.dt)
+
+    def _take_snapshot(self):
+        st = self.state
+        if self._snapshot is None:
+            self._snapshot = {name: arrays.like(getattr(st, name))
+                              for name in ("x", "v", "theta", "root_t", "root_u")}
+        for name, copy in self._snapshot.items():
+            copy.copy_from(getattr(st, name))
+        self._snapshot_clock = (self.time, self.steps_taken, self._head)
+
+    def _diverged(self, h, bad_step):
+        bad = np.flatnonzero(bad_step >= 0)
+        first = bad[np.argmin(bad_step[bad])]
+        counters = self.state.counters.to_numpy()
+        cap_hits = int(counters[:, COUNTERS["projection_cap_hits"]].sum())
+        t = self.time + (bad_step[first] + 1) * h
+        step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
+        for name, copy in self._snapshot.items():
+            getattr(self.state, name).copy_from(copy)
+        self.time, self.steps_taken, self._head = self._snapshot_clock
+        self._head_prev = self._head
+        self._orient_roots()
+        self.update_frames()
+        residual = float(self.state.residuals.to_numpy()[first, 0])
+        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual)
+        twist_residual = float(self.state.residuals.to_numpy()[first, 1])
+        # the kernel's rule (step.strand_twist): a cap, or a stall above TWIST_FAILED_ABOVE
+        if counters[first, COUNTERS["twist_cap_hits"]] or (
+                counters[first, COUNTERS["twist_stalls"]] and twist_residual > TWIST_FAILED_ABOVE):
+            cause = (f"the twist solve of strand {first} did not converge (scaled residual "
+                     f"{twist_residual:.3g} after up to {self.twist_iterations} "
+                     f"iterations): its forces would not be the energy's gradient; raise "
+                     f"twist_iterations or twist_tol")
+        raise SimulationDiverged(
+            f"simulation diverged at step {step} (t = {t:.4g} s): strand {first} "
+            f"({len(bad)} strand(s) in all) went non-finite, faster than {self.control.max_speed:g} m/s, "
+            f"out of its inextensibility constraints or out of twist equilibrium; "
+            f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
+            step=step, strand=int(first))
+
+    # ---- checkpoints --------------------------------------------------------------------
+    def save_state(self, path, extra=None) -> None:
+        """Write the dynamic state (positions, velocities, material angles, time, step count,
+        head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
+        crash mid-write leaves the previous checkpoint intact. `extra`: a dict of numbers or
+        arrays stored alongside as `extra_<name>` (the runner's frame count), part of the same
+        atomic record; `load_state` ignores them."""
+        import os
+        path = os.fspath(path)
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, **{f"extra_{k}": v for k, v in (extra or {}).items()},
+                 x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
+                 theta=self.state.theta.to_numpy(), root_t=self.state.root_t.to_numpy(),
+                 root_u=self.state.root_u.to_numpy(), time=self.time, steps=self.steps_taken,
+                 head=_pose(*self._head), head_prev=_pose(*self._head_prev),
+                 shape=np.array([self.groom.n_strands, self.groom.max_nodes]))
+        os.replace(tmp, path)
+
+    def load_state(self, path) -> None:
+        """Restore a state written by `save_state` for this same groom; ValueError if the file
+        does not fit (other strand or node counts, missing arrays, non-finite values)."""
+        try:
+            with np.load(path) as data:
+                saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
+                saved.update({k: data[k] for k in ("root_t", "root_u") if k in data})  # older files lack them
+        except (OSError, KeyError, ValueError) as err:
+            raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
+        expected = [self.groom.n_strands, self.groom.max_nodes]
+        if list(saved["shape"]) != expected:
+            raise ValueError(f"{path}: state of {list(saved['shape'])} strands x nodes, this groom has {expected}")
+        if not all(np.all(np.isfinite(saved[k])) for k in ("x", "v", "theta")):
+            raise ValueError(f"{path}: the saved state has non-finite values")
+        self.state.x.from_numpy(saved["x"].astype(arrays.np_float()))
+        self.state.v.from_numpy(saved["v"].astype(arrays.np_float()))
+        self.state.theta.from_numpy(saved["theta"].astype(arrays.np_float()))
+        self.time, self.steps_taken = float(saved["time"]), int(saved["steps"])
+        self._head = (saved["head"][:3].astype(np.float64), saved["head"][3].astype(np.float64))
+        self._head_prev = (saved["head_prev"][:3].astype(np.float64), saved["head_prev"][3].astype(np.float64))
+        for k in ("root_t", "root_u"):
+            if k in saved:
+                getattr(self.state, k).from_numpy(saved[k].astype(arrays.np_float()))
+        self._orient_roots()
+        self.update_frames()
+
+    def set_user_forces(self, force) -> None:
+        """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
+        if force is None:
+            self.control.user_force = None
+            return
+        force = np.asarray(force, dtype=np.float64)
+        shape = (self.groom.n_strands, self.groom.max_nodes, 3)
+        if force.shape != shape:
+            raise ValueError(f"user forces must have shape {list(shape)} (strands, nodes, xyz) N, "
+                             f"got {list(force.shape)}")
+        if not np.all(np.isfinite(force)):
+            s, i = np.argwhere(~np.isfinite(force))[0][:2]
+            raise ValueError(f"user forces must be finite; strand {s} node {i} is {force[s, i]} N")
+        if self.control.user_force is None:
+            self.control.user_force = arrays.vectors(3, shape[:2])
+        self.control.user_force.from_numpy(force.astype(arrays.np_float()))
+
+    def stats(self, reset: bool = False) -> dict:
+        """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
+        projection iterations (max), its final residual (max), how many strand-steps ended above
+        projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
+        an iteration removed under 10 % of a residual already below projection_stall_below,
+        1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
+        lengths in any precision), and the twist solve's iterations and residual."""
+        counters = self.state.counters.to_numpy()
+        residuals = self.state.residuals.to_numpy()
+        report = {
+            "time": self.time, "steps": self.steps_taken, "dt": self.dt, "substeps": self.substeps,
+            "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
+            "projection_tol": self.plan.projection_tol,
+            "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
+            "projection_residual_max": float(residuals[:, 0].max()),
+            "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
+            "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
+            "projection_stall_below": STALL_BELOW,
+            "twist": self.twist,
+        }
+        if self.twist != "none":  # kmoch solves round strands exactly too
+            report["twist_iterations_max"] = int(counters[:, COUNTERS["twist_iterations"]].max())
+            report["twist_residual_max"] = float(residuals[:, 1].max())
+            report["twist_cap_hits"] = int(counters[:, COUNTERS["twist_cap_hits"]].sum())
+            report["twist_stalls"] = int(counters[:, COUNTERS["twist_stalls"]].sum())
+        if self.twist == "kmoch":
+            report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
+        if reset:
+            self._reset_counters()
+        return report
+
+    def _reset_counters(self):
+        self.rods.reset_counters()
+
+    # ---- the rods (system.RodSystem): state in and out, frames, twist, elastic energy --------
+    @property
+    def n_strands(self) -> int:
+        return self.groom.n_strands
+
+    def positions(self) -> np.ndarray:
+        """Node positions [S, N, 3] in metres (padding nodes repeat each strand's last node)."""
+        return self.rods.positions()
+
+    def velocities(self) -> np.ndarray:
+        """Node velocities [S, N, 3] in m/s."""
+        return self.rods.velocities()
+
+    def set_positions(self, x) -> None:
+        """Set node positions [S, N, 3] (metres) and recompute the frames (RodSystem.set_positions)."""
+        self.rods.set_positions(x)
+
+    def set_velocities(self, v) -> None:
+        """Set node velocities [S, N, 3] in m/s."""
+        self.rods.set_velocities(v)
+
+    def material_angles(self) -> np.ndarray:
+        """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
+        return self.rods.material_angles()
+
+    def set_material_angles(self, theta) -> None:
+        self.rods.set_material_angles(theta)
+
+    def frames(self) -> dict:
+        """Bishop and material frames, tangents and curvature binormals (RodSystem.frames)."""
+        return self.rods.frames()
+
+    def update_frames(self) -> None:
+        """Bishop and material frames and curvature binormals from the current positions."""
+        self.rods.update_frames()
+
+    def update_twist(self) -> dict:
+        """Solve the free edges' material angles with the chosen twist mode (RodSystem.update_twist)."""
+        return self.rods.update_twist()
+
+    def strand_elastic_energy(self) -> np.ndarray:
+        """Elastic energy of each strand [S] in joules, material angles as they are."""
+        return self.rods.strand_elastic_energy()
+
+    def elastic_energy(self) -> float:
+        """Bending + twist energy of all strands in joules, material angles held as they are."""
+        return self.rods.elastic_energy()
+
+    def elastic_forces(self) -> np.ndarray:
+        """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces)."""
+        return self.rods.elastic_forces()
+
+    def theta_gradient(self) -> np.ndarray:
+        """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
+        return self.rods.theta_gradient()
+
+    # ---- energies of the motion ---------------------------------------------------------
+    def _mechanical(self):
+        """Per-strand kinetic and gravitational energy [S], [S] in joules."""
+        st, md = self.state, self.model
+        strand_mechanical_energy(md.node_count, md.mass, self._pins.free_inv_mass, st.x, st.v,
+                                 self.control.loads, st.strand_scalar, self._potential)
+        return st.strand_scalar.to_numpy().astype(np.float64), self._potential.to_numpy().astype(np.float64)
+
+    def kinetic_energy(self) -> float:
+        """Sum of 1/2 m |v|^2 over free nodes [J] (the head-driven root node excluded)."""
+        return float(self._mechanical()[0].sum())
+
+    def gravity_energy(self) -> float:
+        """Gravitational potential -sum m g . x over free nodes [J] (zero at the origin)."""
+        return float(self._mechanical()[1].sum())
+
+    def total_energy(self) -> float:
+        """kinetic + gravity + elastic [J]."""
+        k, p = self._mechanical()
+        return float(k.sum() + p.sum()) + self.elastic_energy()
+
+
+
+def default_projection_tol(groom: Groom) -> float:
+    """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
+    errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
+    (X covers where the hair can reach from its roots); taken with a factor 2 of margin. Not
+    more: a residual left at tol is an edge stretched by tol ds / 2 that the next step removes
+    as a velocity kick of that size over the substep, which heats fine, stiff hair (8 eps X / ds
+    and above: +5 % of the energy in play at 1 mm segments; docs/model.md, "Velocities"). Not
+    less: an undamped spring grab at 0.5 m/s, which the looser projection's slack steadied,
+    diverges at 2 eps X / ds."""
+    if precision() == "float64":
+        return 1e-6
+    reach = np.abs(groom.positions).max() + groom.lengths().max()
+    shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
+                   for s in range(groom.n_strands))
+    return max(1e-6, 4 * float(np.finfo(np.float32).eps) * reach / shortest)
+
+
+def _max_air_speed(wind) -> float:
+    """Fastest air [m/s] a wind can blow: mean * (1 + gust) + three turbulence rms."""
+    if isinstance(wind, Wind):
+        return (float(np.linalg.norm(wind.velocity)) * (1.0 + wind.gust_amplitude) + 3.0 * wind.turbulence)
+    return float(np.linalg.norm(wind))
+
+
+def _pose(rotation, translation):
+    """[4, 3]: rows of R, then t."""
+    return np.vstack([rotation, translation])
+
+
+def _grab_bound(model, grab, factor):
+    """Explicit stability of a grab spring k on the lightest free node: h < 2 factor sqrt(m / k)."""
+    masses = model.mass.to_numpy()[model.inv_mass.to_numpy() > 0]
+    return 2.0 * factor * math.sqrt(masses.min() / grab.stiffness)
+
+
+def _check_max_substeps(value) -> int:
+    if not (is_integer(value) and value >= 1):
+        raise ValueError(f"max_substeps must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
+                     wind, colliders, touch, hair_interaction, gravity):
+    check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
+                        touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag)
+    for name, value in (("projection_iterations", projection_iterations),
+                        ("twist_iterations", twist_iterations)):
+        if not (is_integer(value) and value >= 1):
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    for k, c in enumerate(colliders):
+        if not isinstance(c, COLLIDER_TYPES):
+            raise ValueError(f"colliders[{k}] must be one of Sphere, Ellipsoid, Capsule, Plane, "
+                             f"MeshCollider; got {type(c).__name__}")
+
+
+def check_rigid_transform(rotation, translation):
+    """Validated (R [3, 3], t [3]) float64 arrays, or ValueError naming the bad one."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    translation = np.asarray(translation, dtype=np.float64)
+    if rotation.shape != (3, 3) or not np.all(np.isfinite(rotation)):
+        raise ValueError(f"rotation must be a finite 3x3 matrix, got shape {rotation.shape}")
+    if (np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-6
+            or abs(np.linalg.det(rotation) - 1.0) > 1e-6):
+        raise ValueError("rotation must be a proper rotation matrix (R^T R = I within 1e-6, det R = +1)")
+    if translation.shape != (3,) or not np.all(np.isfinite(translation)):
+        raise ValueError(f"translation must be a finite vector of 3 metres, got {translation!r}")
+    return rotation, translation

@@ -1,0 +1,593 @@
+"""Kmoch's loop, one time step h: forces, integrate, project (inextensibility + contacts),
+velocities, frames, twist.
+
+Each stage is a per-strand `ti.func`. Two drivers run them:
+- `advance_strands`: one kernel launch for many steps, one thread per strand running the
+  stages in order; the stages a scene does not use are removed at compile time (`ti.static`
+  flags), so they are neither compiled nor run. This is the default: Python's per-launch cost
+  (about 12-20 us per array argument with Taichi 1.7) would otherwise dominate small scenes.
+- `kmoch_step`: one kernel per stage and per step, for the per-stage timings of the benchmark
+  and for hair-hair interaction, whose grid couples strands between stages.
+
+Head poses: `head[k]` ([K+1, 4] vec3: rows of R, then t) is the head before step 0 (k = 0) and
+after step k-1; a static head passes [prev, now] and uses now for every step after the first.
+"""
+
+from contextlib import nullcontext
+from dataclasses import asdict, dataclass
+
+import taichi as ti
+
+from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
+from .collisions import strand_collide
+from ..world.forces import air_velocity, grab_force
+from ..rods.frames import strand_frames, strand_material_frames
+from ..rods.linalg import thomas_solve
+from .pins import strand_carry_root_frame, strand_place_pins
+from ..rods.rod import elastic_forces, strand_elastic_forces
+from ..rods.state import COUNTERS
+from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch,
+                    strand_twist_quasistatic)
+
+TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
+# root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
+# pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
+# before the clamp moved to the root node, kept for comparison)
+ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2}
+STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
+FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
+# With pins a stretch of strand can be held at both ends; taut and straight, its projection
+# system is singular (more length constraints than the free nodes can move along the line).
+# Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
+# it slows the linear convergence only by a factor HELD_DAMPING per iteration.
+HELD_DAMPING = 1e-6
+# a twist solve that stalled at the rounding floor above this scaled residual is a failed step
+TWIST_FAILED_ABOVE = 1e-3
+PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWITCH = (
+    COUNTERS[k] for k in ("projection_iterations", "projection_cap_hits", "projection_stalls",
+                          "twist_iterations", "bad_step", "twist_cap_hits", "twist_stalls",
+                          "twist_branch_switches"))
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """Which stages run (fixed when the simulator is built) and the solver tolerances."""
+
+    external_forces: bool  # gravity, air drag or wind present
+    wind_field: bool  # gusts or turbulence: air velocity varies in time and space
+    twist: str  # "kmoch", "quasistatic" or "none"
+    n_analytic: int  # analytic colliders
+    mesh: bool  # a distance-grid collider
+    touch: bool  # hands or grab tools
+    projection_tol: float
+    projection_iterations: int
+    twist_tol: float
+    twist_iterations: int
+    root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
+
+    @property
+    def pinned_root(self) -> bool:
+        return self.root == "pinned"
+
+    @property
+    def root_mode(self) -> int:
+        return ROOT_CODES[self.root]
+
+    @property
+    def contacts(self) -> bool:
+        return self.n_analytic > 0 or self.mesh or self.touch
+
+
+# ---- argument bundles --------------------------------------------------------------------------
+# Every step kernel takes the same five bundles (Taichi argpacks of ndarrays) instead of loose
+# arrays: what never changes in a run (ModelArgs), what each step changes (StateArgs), what
+# drives it (DriveArgs: head poses, loads, wind tables, tools, user forces, pins), what it
+# collides with (ContactArgs), and the launch's scalars (StepScalars). A bundle is built once
+# per simulator (StepBundles): building one costs about what a launch does, passing a built
+# one costs the same as passing its arrays one by one (measured in docs/architecture.md).
+
+ModelArgs = ti.types.argpack(
+    node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
+    stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
+StateArgs = ti.types.argpack(
+    x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
+    bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2)
+DriveArgs = ti.types.argpack(
+    head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
+    tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
+ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
+StepScalars = ti.types.struct(
+    h=float, t0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
+    twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
+
+
+@dataclass(frozen=True)
+class StageFlags:
+    """The compile-time switches of the step kernels (passed as ti.template, so each distinct
+    value compiles its own kernel once per process): a stage whose flag is off is neither
+    compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
+    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held."""
+
+    external: bool
+    wind_field: bool
+    twist_mode: int
+    user: bool
+    moving_head: bool
+    contacts: bool
+    mesh: bool
+    touch: bool
+    pins: bool
+    root_mode: int
+
+
+def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False, pins: bool = False,
+                **overrides) -> StageFlags:
+    """The flags of `plan` for one launch."""
+    flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
+                 user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
+                 touch=plan.touch, pins=pins, root_mode=plan.root_mode)
+    flags.update(overrides)
+    return StageFlags(**flags)
+
+
+class StepBundles:
+    """One simulator's kernel bundles, built once: model and state from the rods, contacts and
+    drive from the control once `bind` gives it; the drive bundle is rebuilt only when user
+    forces or pins first get their arrays."""
+
+    def __init__(self, model, state):
+        md, st = model, state
+        self.model = ModelArgs(node_count=md.node_count, mass=md.mass, inv_mass=md.inv_mass,
+                               rest_length=md.rest_length, voronoi=md.voronoi, stiffness=md.stiffness,
+                               rest_kappa=md.rest_kappa, rest_twist=md.rest_twist, root_frame=md.root_frame)
+        diag, upper, rhs = st.scratch_edge
+        self.state = StateArgs(x=st.x, v=st.v, x_prev=st.x_prev, dx=st.dx, force=st.force, theta=st.theta,
+                               bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
+                               root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
+                               counters=st.counters, residuals=st.residuals)
+        self._state, self._control, self.contacts = st, None, None
+        self._drive_key, self._drive = None, None
+
+    def bind(self, control) -> None:
+        """Take the control arrays (control.Control) that drive the steps."""
+        c = control
+        self._control = c
+        self.contacts = ContactArgs(kinds=c.kinds, geometry=c.geometry, params=c.params, sdf=c.sdf,
+                                    sdf_meta=c.sdf_meta)
+        self._drive_key = None
+
+    def drive(self, pins=None):
+        """The drive bundle; pins: None or the (mode, start, end) arrays of the pin table (an
+        unused flag's arrays are placeholders of the right type)."""
+        st, c = self._state, self._control
+        key = (id(c.user_force), None if pins is None else tuple(id(a) for a in pins))
+        if key != self._drive_key:
+            mode, start, end = pins if pins is not None else (st.counters, st.dx, st.dx)
+            self._drive = DriveArgs(head=c.head, loads=c.loads, gusts=c.gusts, modes=c.modes,
+                                    user_force=c.user_force if c.user_force is not None else st.force,
+                                    tools=c.tools, tool_points=c.tool_points, pin_mode=mode,
+                                    pin_start=start, pin_end=end)
+            self._drive_key = key
+        return self._drive
+
+
+def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)):
+    """The launch's scalars: step h [s] from control.time; pins pin_fraction = (f0, df)."""
+    return StepScalars(h=h, t0=control.time, drag=control.drag, max_speed=control.max_speed,
+                       projection_tol=plan.projection_tol, projection_iterations=plan.projection_iterations,
+                       twist_tol=plan.twist_tol, twist_iterations=plan.twist_iterations,
+                       n_analytic=plan.n_analytic, pin_f0=pin_fraction[0], pin_df=pin_fraction[1])
+
+
+# ---- per-strand helpers ------------------------------------------------------------------------
+
+@ti.func
+def head_poses(k, fl: ti.template()):
+    """(now, prev): the head pose indices ending and starting step k of a launch (module doc)."""
+    now = 1
+    prev = 0
+    if ti.static(fl.moving_head):
+        now = k + 1
+        prev = k
+    elif k > 0:
+        prev = 1
+    return now, prev
+
+
+@ti.func
+def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
+                           dr: ti.template()):
+    """force += m g - drag l_i (v - u_air) + grab springs; loads = (gravity [m/s^2], mean wind
+    [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field;
+    grabs at the tools' positions at the start of step k."""
+    t = sc.t0 + k * sc.h
+    for i in range(md.node_count[s]):
+        air = dr.loads[1]
+        if ti.static(fl.wind_field):
+            air = air_velocity(dr.loads[1], dr.gusts, dr.modes, t, st.x[s, i])
+        f = md.mass[s, i] * dr.loads[0] - sc.drag * md.voronoi[s, i] * (st.v[s, i] - air)
+        if ti.static(fl.touch):
+            f += grab_force(dr.tools, dr.tool_points, k, st.x[s, i])
+        st.force[s, i] += f
+
+
+@ti.func
+def strand_symplectic_euler(s, h, md: ti.template(), st: ti.template()):
+    """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0); dx = the step's
+    displacement so far (h v, 0 on held nodes), which the projection and contacts add to."""
+    for i in range(md.node_count[s]):
+        st.x_prev[s, i] = st.x[s, i]
+        st.dx[s, i] = vec3(0.0)
+        if md.inv_mass[s, i] > 0.0:
+            st.v[s, i] += h * md.inv_mass[s, i] * st.force[s, i]
+            st.dx[s, i] = h * st.v[s, i]
+            st.x[s, i] += st.dx[s, i]
+
+
+@ti.func
+def rotate(head: ti.template(), k, p):
+    return vec3(head[k, 0].dot(p), head[k, 1].dot(p), head[k, 2].dot(p))
+
+
+@ti.func
+def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: ti.template(),
+                      root_t: ti.template(), root_u: ti.template(), root_mode: ti.template()):
+    """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
+    clamp that node 0 bends and twists against and from which the Bishop frames start, turns
+    with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
+    for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
+        x[s, node] = rotate(head, k, root_frame[s, node]) + head[k, 3]
+    if ti.static(root_mode != 1):
+        root_t[s] = rotate(head, k, root_frame[s, 2])
+        root_u[s] = rotate(head, k, root_frame[s, 3])
+
+
+@ti.func
+def solve_inextensibility(s, n, md: ti.template(), st: ti.template()):
+    """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
+    in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda; the correction is added
+    to the step's displacement dx too (see strand_velocities)."""
+    thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
+    # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
+    # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
+    e_before = vec3(0.0)
+    for i in range(n):
+        move = vec3(0.0)
+        e = vec3(0.0)
+        if i + 1 < n:
+            e = st.x[s, i + 1] - st.x[s, i]
+            move += st.rhs[s, i] * e
+        if i > 0:
+            move -= st.rhs[s, i - 1] * e_before
+        move *= 2.0 * md.inv_mass[s, i]
+        st.x[s, i] += move
+        st.dx[s, i] += move
+        e_before = e
+
+
+@ti.func
+def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
+                   dr: ti.template(), co: ti.template()):
+    """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
+    edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
+    projection_tol after contacts, projection_iterations, or a stall (an iteration removing
+    less than 10 % of a residual already below STALL_BELOW: the precision's rounding floor; far
+    from satisfied, slow progress is the nonlinear start of Gauss-Newton and it keeps going).
+    Held nodes (the root, pins) have infinite mass (inv_mass 0); an edge with both nodes held (a
+    clip) is prescribed: its row is the identity with a zero right-hand side, outside the
+    residual; with pins the diagonal is damped (HELD_DAMPING). Returns (iterations, final
+    residual)."""
+    n = md.node_count[s]
+    now, prev = head_poses(k, fl)
+    it = 0
+    res = 0.0
+    previous = 0.0
+    while True:
+        if ti.static(fl.contacts):
+            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
+        previous = res
+        res = 0.0
+        for j in range(n - 1):
+            e = st.x[s, j + 1] - st.x[s, j]
+            w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
+            st.rhs[s, j] = 0.0
+            st.diag[s, j] = 1.0
+            if w > 0.0:
+                l2 = md.rest_length[s, j] * md.rest_length[s, j]
+                c = e.dot(e) - l2
+                res = ti.max(res, ti.abs(c) / l2)
+                st.rhs[s, j] = c
+                st.diag[s, j] = 4.0 * e.dot(e) * w
+                if ti.static(fl.pins):
+                    st.diag[s, j] *= 1.0 + HELD_DAMPING
+            if j + 1 < n - 1:
+                st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * e.dot(st.x[s, j + 2] - st.x[s, j + 1])
+        if (res < sc.projection_tol or it >= sc.projection_iterations
+                or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous)):
+            break
+        solve_inextensibility(s, n, md, st)
+        it += 1
+    return it, res
+
+
+@ti.func
+def strand_velocities(s, sc, md: ti.template(), st: ti.template()):
+    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx:
+    x itself is rounded to its coordinates' precision at every update, and in float32 with small
+    substeps (eps |x| / h ~ mm/s at 1 mm segments) that rounding, read back as velocity, would
+    heat the hair (docs/model.md, "Velocities"). Held nodes take the difference of positions.
+    Returns 1 if a node is non-finite or faster than max_speed, else 0."""
+    bad = 0
+    inv_h = 1.0 / sc.h
+    for i in range(md.node_count[s]):
+        vel = st.dx[s, i] * inv_h
+        if md.inv_mass[s, i] == 0.0:
+            vel = (st.x[s, i] - st.x_prev[s, i]) * inv_h
+        st.v[s, i] = vel
+        # written so that NaN, which fails every comparison, counts as bad
+        if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):
+            bad = 1
+    return bad
+
+
+@ti.func
+def record_projection(s, st: ti.template(), it, res, tol, max_iterations):
+    """Running maxima of iterations and final residual; counts of steps that ended above tol
+    at the iteration cap, or stalled at the rounding floor."""
+    st.counters[s, PROJ_IT] = ti.max(st.counters[s, PROJ_IT], it)
+    st.residuals[s, 0] = ti.max(st.residuals[s, 0], res)
+    if res >= tol:
+        if it >= max_iterations:
+            st.counters[s, PROJ_CAP] += 1
+        else:
+            st.counters[s, PROJ_STALL] += 1
+
+
+@ti.func
+def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template()):
+    """The twist update of strand s (kmoch or quasistatic); material frames follow. Kmoch's rule
+    needs an elliptic section: round strands solve their twist exactly. Returns 1 if the solve
+    failed (iteration cap, or stalled far from equilibrium), else 0."""
+    failed = 0
+    clamp = ti.static(fl.root_mode == 0)
+    if ti.static(fl.twist_mode != 0):
+        exact = 1
+        if ti.static(fl.twist_mode == 1):
+            if md.stiffness[s].x != md.stiffness[s].y:
+                exact = 0
+        if exact:
+            it, res, how = strand_twist_quasistatic(s, clamp, md.node_count, st.bishop_u, st.bishop_v, st.kb,
+                                                    st.theta, md.rest_kappa, md.rest_twist, md.voronoi,
+                                                    md.stiffness, sc.twist_tol, sc.twist_iterations,
+                                                    st.diag, st.upper, st.rhs)
+            st.counters[s, TWIST_IT] = ti.max(st.counters[s, TWIST_IT], it)
+            st.residuals[s, 1] = ti.max(st.residuals[s, 1], res)
+            if how == CAPPED:
+                st.counters[s, TWIST_CAP] += 1
+                failed = 1
+            if how == STALLED:
+                st.counters[s, TWIST_STALL] += 1
+                if res > TWIST_FAILED_ABOVE:
+                    failed = 1
+        elif ti.static(fl.twist_mode == 1):
+            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
+                                                               st.bishop_v, st.kb, st.theta, md.rest_kappa,
+                                                               md.rest_twist, md.voronoi, md.stiffness, st.diag)
+        strand_material_frames(s, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
+    return failed
+
+
+# ---- the stages of Kmoch's loop, in order ------------------------------------------------------
+# Each takes (strand, step k of the launch, flags, scalars, model, state, drive, contacts) and
+# returns 1 if the strand's step failed there. Both drivers run this one list.
+
+@ti.func
+def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                 co: ti.template()):
+    """force = elastic (with Kmoch's rule's total-derivative term) + gravity, drag, wind, grabs
+    + user forces."""
+    clamp = ti.static(fl.root_mode == 0)
+    strand_elastic_forces(s, clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
+                          md.rest_kappa, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.twist_mode == 1):
+        strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                            st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.external or fl.touch):
+        strand_external_forces(s, k, fl, sc, md, st, dr)
+    if ti.static(fl.user):
+        for i in range(md.node_count[s]):
+            st.force[s, i] += dr.user_force[s, i]
+    return 0
+
+
+@ti.func
+def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                    co: ti.template()):
+    """Symplectic Euler; the root onto the head pose ending the step; pinned nodes
+    min(1, pin_f0 + (k + 1) pin_df) of the way to their targets."""
+    now, _ = head_poses(k, fl)
+    strand_symplectic_euler(s, sc.h, md, st)
+    strand_place_root(s, dr.head, now, md.root_frame, st.x, st.root_t, st.root_u, fl.root_mode)
+    if ti.static(fl.pins):
+        strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
+                          dr.pin_start, dr.pin_end, dr.head, now, st.x)
+    return 0
+
+
+@ti.func
+def stage_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                  co: ti.template()):
+    """Inextensibility and contacts (strand_project), recorded; fails above FAILED_ABOVE."""
+    it, res = strand_project(s, k, fl, sc, md, st, dr, co)
+    record_projection(s, st, it, res, sc.projection_tol, sc.projection_iterations)
+    bad = 0
+    if not (res <= FAILED_ABOVE):
+        bad = 1
+    return bad
+
+
+@ti.func
+def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                       co: ti.template()):
+    """Velocities (with the blow-up check), Bishop frames (a pinned root's reference carried in
+    time), the twist update and the material frames."""
+    bad = strand_velocities(s, sc, md, st)
+    strand_frames(s, ti.static(fl.root_mode == 0), st.x, md.node_count, st.root_t, st.root_u, st.theta,
+                  st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb)
+    if ti.static(fl.root_mode == 1):
+        strand_carry_root_frame(s, st.x, st.root_t, st.root_u)
+    if strand_twist(s, fl, sc, md, st):
+        bad = 1
+    return bad
+
+
+STAGES = (("forces", stage_forces), ("integration", stage_integrate), ("projection", stage_project),
+          ("frames + twist", stage_frames_twist))
+STAGE_NAMES = tuple(name for name, _ in STAGES)
+_STAGE_FUNCS = tuple(func for _, func in STAGES)
+
+
+# ---- the fused driver: many steps in one launch -------------------------------------------------
+
+@ti.kernel
+def advance_strands(n_steps: int, fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
+                    dr: DriveArgs, co: ContactArgs):
+    """n_steps steps of sc.h [s] from time sc.t0 for every strand (head poses as in the module
+    doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
+    step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+        for k in range(n_steps):
+            bad = 0
+            for stage in ti.static(_STAGE_FUNCS):
+                bad += stage(s, k, fl, sc, md, st, dr, co)
+            if bad:
+                st.counters[s, BAD] = k
+                break
+
+
+def compiled_variants() -> list[dict]:
+    """The stage flags of every compiled instance of the fused kernel in this process: a stage
+    whose flag is False in every instance was never compiled (nor run). Reads Taichi's
+    template-instance table."""
+    keys = advance_strands._primal.mapper.mapping
+    return [asdict(next(part for part in key if isinstance(part, StageFlags))) for key in keys]
+
+
+def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, moving_head: bool,
+            pins=None) -> None:
+    """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
+    pins: None, or (pin_mode, pin_start, pin_end, f0, df): after step k pinned nodes are
+    min(1, f0 + (k + 1) df) of the way from start to end (see pins.py)."""
+    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
+    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
+                        pins=pins is not None)
+    advance_strands(n_steps, flags, step_scalars(plan, control, h, fraction), bundles.model,
+                    bundles.state, bundles.drive(arrays_), bundles.contacts)
+
+
+# ---- the staged driver: one kernel per stage (benchmark breakdown; hair-hair interaction) -------
+
+@ti.kernel
+def run_stage(stage: ti.template(), fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
+              dr: DriveArgs, co: ContactArgs):
+    """One stage of a one-step launch for every strand; counters[s, BAD] = 0 where it failed.
+    One thread per strand."""
+    for s in range(st.x.shape[0]):
+        if stage(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
+
+
+@ti.kernel
+def clear_bad(counters: Ints2):
+    for s in range(counters.shape[0]):
+        counters[s, BAD] = -1
+
+
+@ti.kernel
+def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
+    """Root nodes and root reference frames at head pose 1. One thread per strand."""
+    for s in range(x.shape[0]):
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
+
+
+def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: float, timers=None,
+               interaction=None, pins=None) -> None:
+    """One step of h with one kernel per stage (head poses [prev, now] in control.head; pins as
+    in `advance`, for this one step).
+    `timers(name)` gives a context manager timing each stage (it must synchronise);
+    `interaction(model, state, control, h)` adds hair-hair forces and velocity smoothing after
+    the forces."""
+    stage_timer = timers if timers is not None else (lambda name: nullcontext())
+    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
+    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None)
+    scalars = step_scalars(plan, control, h, fraction)
+    drive = bundles.drive(arrays_)
+    clear_bad(state.counters)
+    for name, stage in STAGES:
+        with stage_timer(name):
+            run_stage(stage, flags, scalars, bundles.model, bundles.state, drive, bundles.contacts)
+        if name == "forces" and interaction is not None:
+            with stage_timer("hair-hair"):
+                interaction(model, state, control, h)
+
+
+def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) -> None:
+    """The projection stage alone, contacts on and pins off (head pose 0 -> 1): the initial
+    contact solve."""
+    flags = stage_flags(plan, contacts=True, pins=False)
+    clear_bad(bundles.state.counters)
+    run_stage(stage_project, flags, step_scalars(plan, control, h), bundles.model, bundles.state,
+              bundles.drive(), bundles.contacts)
+
+
+@ti.kernel
+def update_twist_kernel(fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs):
+    """The twist stage alone; counters[s, BAD] = 0 where it failed, else -1."""
+    for s in range(st.theta.shape[0]):
+        st.counters[s, BAD] = -1
+        if strand_twist(s, fl, sc, md, st):
+            st.counters[s, BAD] = 0
+
+
+def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
+    """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
+    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands).
+    rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
+    md, st = model, state
+    kappa = md.rest_kappa if rest_kappa is None else rest_kappa
+    elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
+                   kappa, md.voronoi, md.stiffness, st.force)
+    if twist == "kmoch":
+        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                     st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+
+
+def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int):
+    """The twist stage alone (no-op for "none"); material frames follow the new angles."""
+    if twist == "none":
+        return
+    flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
+                       moving_head=False, contacts=False, mesh=False, touch=False, pins=False,
+                       root_mode=ROOT_CODES[root])
+    scalars = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+                          twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0,
+                          pin_f0=0.0, pin_df=0.0)
+    update_twist_kernel(flags, scalars, bundles.model, bundles.state)
+
+
+@ti.kernel
+def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, x: Vec3s2,
+                             v: Vec3s2, loads: Vec3s1, kinetic: Scalars1, potential: Scalars1):
+    """kinetic[s] = sum 1/2 m |v|^2, potential[s] = -sum m g . x [J] over the free nodes (the root
+    edge is driven by the head, not by forces). One thread per strand."""
+    for s in range(x.shape[0]):
+        k = 0.0
+        p = 0.0
+        for i in range(node_count[s]):
+            if inv_mass[s, i] > 0.0:
+                k += 0.5 * mass[s, i] * v[s, i].dot(v[s, i])
+                p -= mass[s, i] * loads[0].dot(x[s, i])
+        kinetic[s] = k
+        potential[s] = p

@@ -1,0 +1,199 @@
+"""Guide strands as rods, without time stepping: the model and state of a groom and what they
+define (frames, the elastic energy, its forces, the twist solve). The Simulator steps one; the
+sag-free solve and the cosseratbench plugin probe one. Units: SI throughout."""
+
+import math
+
+import numpy as np
+
+from ..rods import arrays
+from ..rods.frames import update_frames, update_material_frames
+from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
+from .pins import ROOT_MODES
+from ..rods.rod import strand_elastic_energy, theta_gradient
+from ..runtime import ensure_init, precision
+from ..rods.state import COUNTERS, build
+from .step import StepBundles, run_twist_update, total_elastic_forces
+from ..rods.twist import TWIST_MODES
+from ..validation import is_integer
+
+
+class RodSystem:
+    """The rods of `groom` made of `material` (one Material or one per strand).
+
+    twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
+    quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
+    float32; 100). root: "clamped", "pinned" or "edge" (see Simulator). Attributes: groom,
+    model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
+
+    def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
+                 twist_tol: float | None = None, twist_iterations: int = 100):
+        ensure_init()
+        if not isinstance(groom, Groom):
+            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
+        if twist not in TWIST_MODES:
+            raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
+        if root not in ROOT_MODES:
+            raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
+        if not (is_integer(twist_iterations) and twist_iterations >= 1):
+            raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
+        self.groom, self.twist, self.root = groom, twist, root
+        self.twist_iterations = int(twist_iterations)
+        self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
+        if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
+            raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
+        self.model, self.state = build(groom, material, clamp=root == "clamped")
+        if root == "edge":  # the first edge rides on the head: node 1 is held too
+            inv_mass = self.model.inv_mass.to_numpy()
+            inv_mass[:, 1] = 0.0
+            self.model.inv_mass.from_numpy(inv_mass)
+        self.bundles = StepBundles(self.model, self.state)
+
+    # ---- state in and out -------------------------------------------------------------
+    @property
+    def n_strands(self) -> int:
+        return self.groom.n_strands
+
+    def positions(self) -> np.ndarray:
+        """Node positions [S, N, 3] in metres (padding nodes repeat each strand's last node)."""
+        return self.state.x.to_numpy().astype(np.float64)
+
+    def velocities(self) -> np.ndarray:
+        """Node velocities [S, N, 3] in m/s."""
+        return self.state.v.to_numpy().astype(np.float64)
+
+    def set_positions(self, x) -> None:
+        """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
+        are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
+        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
+        x = self._checked_nodes("positions", x)
+        check_strand_geometry(x, self.groom.node_counts)
+        self.state.x.from_numpy(x)
+        self.update_frames()
+
+    def set_velocities(self, v) -> None:
+        """Set node velocities [S, N, 3] in m/s."""
+        self.state.v.from_numpy(self._checked_nodes("velocities", v))
+
+    def _checked_nodes(self, name, values):
+        values = np.asarray(values, dtype=np.float64)
+        expected = (self.groom.n_strands, self.groom.max_nodes, 3)
+        if values.shape != expected:
+            raise ValueError(f"{name} must have shape {list(expected)}, got {list(values.shape)}")
+        if not np.all(np.isfinite(values)):
+            s, i = np.argwhere(~np.isfinite(values))[0][:2]
+            raise ValueError(f"{name} must be finite; strand {s} node {i} is {values[s, i]}")
+        return values.astype(arrays.np_float())
+
+    def material_angles(self) -> np.ndarray:
+        """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
+        return self.state.theta.to_numpy().astype(np.float64)
+
+    def set_material_angles(self, theta) -> None:
+        theta = np.asarray(theta, dtype=np.float64)
+        if theta.shape != (self.groom.n_strands, self.groom.max_nodes - 1) or not np.all(np.isfinite(theta)):
+            raise ValueError(f"material angles must be finite with shape "
+                             f"[{self.groom.n_strands}, {self.groom.max_nodes - 1}], got {list(theta.shape)}")
+        self.state.theta.from_numpy(theta.astype(arrays.np_float()))
+        st = self.state
+        update_material_frames(self.model.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
+
+    def frames(self) -> dict:
+        """Numpy copies [S, N-1, 3] of the Bishop frame (u, v), the material frame (m1, m2),
+        the unit tangents t, and the curvature binormals kb [S, N, 3]."""
+        e = np.diff(self.positions(), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = e / np.linalg.norm(e, axis=2, keepdims=True)
+        st = self.state
+        return {"u": st.bishop_u.to_numpy(), "v": st.bishop_v.to_numpy(), "m1": st.m1.to_numpy(),
+                "m2": st.m2.to_numpy(), "t": t, "kb": st.kb.to_numpy()}
+
+    # ---- frames and twist -------------------------------------------------------------
+    def update_frames(self) -> None:
+        """Bishop and material frames and curvature binormals from the current positions."""
+        st, md = self.state, self.model
+        update_frames(md.clamp, st.x, md.node_count, st.root_t, st.root_u, st.theta, st.bishop_u,
+                      st.bishop_v, st.m1, st.m2, st.kb)
+
+    def update_twist(self) -> dict:
+        """Solve the free edges' material angles with the chosen twist mode. Returns
+        {"iterations", "residual", "cap_hits", "stalls"}: the quasistatic solve's max over strands
+        (the scaled residual max |dE/dtheta| l / max(EI1, GJ)) and how many strands ended at the
+        iteration cap or stalled above tolerance at the rounding floor; "kmoch" reports its exact
+        solve of round strands, 1 iteration and residual NaN when every strand is elliptic;
+        "none": 0 iterations, residual NaN."""
+        self.reset_counters()
+        run_twist_update(self.bundles, self.twist, self.root, self.twist_tol, self.twist_iterations)
+        counters = self.state.counters.to_numpy()
+        exact = [m.ellipticity == 1.0 for m in self.model.materials]
+        report = {"iterations": int(counters[:, COUNTERS["twist_iterations"]].max()),
+                  "residual": float(self.state.residuals.to_numpy()[:, 1].max()),
+                  "cap_hits": int(counters[:, COUNTERS["twist_cap_hits"]].sum()),
+                  "stalls": int(counters[:, COUNTERS["twist_stalls"]].sum())}
+        if self.twist == "none" or (self.twist == "kmoch" and not any(exact)):
+            report.update(iterations=int(self.twist == "kmoch"), residual=float("nan"))
+        return report
+
+    def reset_counters(self) -> None:
+        """Zero the per-strand solver counters and residual maxima."""
+        self.state.counters.fill(0)
+        self.state.residuals.fill(0.0)
+
+    # ---- energy and forces ------------------------------------------------------------
+    def strand_elastic_energy(self) -> np.ndarray:
+        """Elastic energy of each strand [S] in joules, material angles as they are."""
+        st, md = self.state, self.model
+        strand_elastic_energy(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
+                              st.root_u, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
+                              st.strand_scalar)
+        return st.strand_scalar.to_numpy().astype(np.float64)
+
+    def elastic_energy(self) -> float:
+        """Bending + twist energy of all strands in joules, material angles held as they are."""
+        return float(self.strand_elastic_energy().sum())
+
+    def elastic_forces(self, rest_kappa=None) -> np.ndarray:
+        """Elastic forces [S, N, 3] in newtons: minus the gradient of `elastic_energy` with the
+        material angles held fixed (holonomy term included). At twist equilibrium (after
+        `update_twist` with "quasistatic") this is also the total force. With twist="kmoch" the
+        angles of elliptic strands follow the centreline by Kmoch's rule, and this is minus the
+        total derivative of E(x, theta_kmoch(x)) (after `update_twist`). rest_kappa: a vec4
+        [S, N] ndarray of rest curvatures to use instead of the model's (the sag-free solve
+        probes the force's dependence on them this way, leaving the model as it is)."""
+        total_elastic_forces(self.model, self.state, self.twist, rest_kappa)
+        return self.state.force.to_numpy().astype(np.float64)
+
+    def theta_gradient(self) -> np.ndarray:
+        """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
+        st, md = self.state, self.model
+        out = st.scratch_edge[0]
+        theta_gradient(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
+                       md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
+        return out.to_numpy().astype(np.float64)
+
+
+def default_twist_tol() -> float:
+    return 1e-10 if precision() == "float64" else 1e-5
+
+
+def check_strand_geometry(x, node_counts):
+    """ValueError naming the first strand and node of x [S, N, 3] m whose segment is shorter than
+    MIN_SEGMENT_LENGTH or whose turn exceeds MAX_TURNING_ANGLE_DEG (the Groom's own rules: the
+    curvature binormal is undefined there, so the energy would be NaN). Vectorised over strands."""
+    x = np.asarray(x, dtype=np.float64)
+    edges = np.diff(x, axis=1)
+    lengths = np.linalg.norm(edges, axis=2)
+    real = np.arange(x.shape[1] - 1)[None, :] < (np.asarray(node_counts)[:, None] - 1)
+    short = np.argwhere(real & (lengths < MIN_SEGMENT_LENGTH))
+    if len(short):
+        s, i = short[0]
+        raise ValueError(f"positions: strand {s} segment {i} (nodes {i}-{i + 1}) has length {lengths[s, i]:.3g} m; "
+                         f"segments must be >= {MIN_SEGMENT_LENGTH:g} m long (coincident nodes)")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_turn = np.sum(edges[:, 1:] * edges[:, :-1], axis=2) / (lengths[:, 1:] * lengths[:, :-1])
+    folded = np.argwhere(real[:, 1:] & (cos_turn < math.cos(math.radians(MAX_TURNING_ANGLE_DEG))))
+    if len(folded):
+        s, i = folded[0]
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_turn[s, i]))))
+        raise ValueError(f"positions: strand {s} turns by {angle:.1f} degrees at node {i + 1}; turning angles "
+                         f"must be <= {MAX_TURNING_ANGLE_DEG:g} degrees (the strand folds back on itself)")

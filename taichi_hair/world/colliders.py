@@ -1,0 +1,222 @@
+"""Colliders: shapes hair must stay outside of, enforced inside the fast projection.
+
+Analytic shapes (sphere, ellipsoid, capsule, plane) and a triangle mesh through a signed-distance
+grid. Each rides on the head (`attached="head"`: given in head coordinates, moving with the
+head's rigid transform) or stays in the world (`attached="world"`). A node closer than `margin`
+[m] (the hair layer's thickness) to the surface is pushed out to the margin along the surface
+normal, and its motion along the surface, relative to the collider, is reduced by Coulomb
+friction `friction` (position-based: the tangential slip shrinks by friction x push depth).
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..rods.arrays import vec3
+from ..validation import is_real
+
+SPHERE, ELLIPSOID, CAPSULE, PLANE = 0, 1, 2, 3
+ATTACHMENTS = ("head", "world")
+
+
+def _vec(name, value, positive=False):
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or (positive and np.any(v <= 0)):
+        rule = "a finite 3-vector" + (" with every entry > 0" if positive else "")
+        raise ValueError(f"{name} must be {rule}, got {value!r}")
+    return v
+
+
+def _scalar(name, value, unit, minimum=0.0, inclusive=True):
+    ok = is_real(value) and math.isfinite(value) and (
+        value >= minimum if inclusive else value > minimum)
+    if not ok:
+        raise ValueError(f"{name} must be a finite number {'>=' if inclusive else '>'} {minimum:g} {unit}, "
+                         f"got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Collider:
+    margin: float = 0.002
+    friction: float = 0.3
+    attached: str = "head"
+
+    def _check_common(self):
+        _scalar("margin", self.margin, "m")
+        _scalar("friction", self.friction, "(Coulomb coefficient)")
+        if self.attached not in ATTACHMENTS:
+            raise ValueError(f"attached must be one of {ATTACHMENTS}, got {self.attached!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sphere(_Collider):
+    """Sphere of `radius` [m] about `centre` [m]."""
+
+    centre: tuple = (0.0, 0.0, 0.0)
+    radius: float = 0.1
+
+    def __post_init__(self):
+        self._check_common()
+        _vec("centre", self.centre)
+        _scalar("radius", self.radius, "m", inclusive=False)
+
+    def packed(self):
+        return SPHERE, self.centre, (0.0, 0.0, 0.0), self.radius
+
+
+@dataclass(frozen=True, kw_only=True)
+class Ellipsoid(_Collider):
+    """Axis-aligned ellipsoid (in its frame) with semi-axes `radii` [m] about `centre` [m].
+    Its distance is Quilez's first-order estimate, exact on the surface and for spheres."""
+
+    centre: tuple = (0.0, 0.0, 0.0)
+    radii: tuple = (0.08, 0.1, 0.115)
+
+    def __post_init__(self):
+        self._check_common()
+        _vec("centre", self.centre)
+        _vec("radii", self.radii, positive=True)
+
+    def packed(self):
+        return ELLIPSOID, self.centre, self.radii, 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class Capsule(_Collider):
+    """Segment p0-p1 [m] swept by a sphere of `radius` [m] (neck, shoulders, arms, a finger)."""
+
+    p0: tuple = (0.0, 0.0, -0.1)
+    p1: tuple = (0.0, 0.0, -0.2)
+    radius: float = 0.05
+
+    def __post_init__(self):
+        self._check_common()
+        _vec("p0", self.p0)
+        _vec("p1", self.p1)
+        _scalar("radius", self.radius, "m", inclusive=False)
+
+    def packed(self):
+        return CAPSULE, self.p0, self.p1, self.radius
+
+
+@dataclass(frozen=True, kw_only=True)
+class Plane(_Collider):
+    """Half-space above the plane through `point` [m] with unit `normal` (a floor, a wall)."""
+
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 0.0, 1.0)
+    attached: str = "world"
+
+    def __post_init__(self):
+        self._check_common()
+        _vec("point", self.point)
+        n = _vec("normal", self.normal)
+        if np.linalg.norm(n) < 1e-9:
+            raise ValueError(f"normal must be non-zero, got {self.normal!r}")
+
+    def packed(self):
+        n = np.asarray(self.normal, dtype=np.float64)
+        return PLANE, self.point, n / np.linalg.norm(n), 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class MeshCollider(_Collider):
+    """A closed triangle mesh through its signed-distance grid, built once at load:
+    `grid` has values [nx, ny, nz] (metres, negative inside) sampled at origin + spacing (i, j, k)
+    (see taichi_hair.world.sdf.SignedDistanceGrid)."""
+
+    grid: object = None
+
+    def __post_init__(self):
+        self._check_common()
+        values = getattr(self.grid, "values", None)
+        if values is None or np.asarray(values).ndim != 3 or min(np.asarray(values).shape) < 2:
+            raise ValueError("grid must be a signed-distance grid with values [nx, ny, nz] (nx, ny, nz >= 2), "
+                             f"origin [3] and spacing; got {type(self.grid).__name__}")
+        _scalar("grid.spacing", float(self.grid.spacing), "m", inclusive=False)
+        _vec("grid.origin", self.grid.origin)
+
+
+# ---- distance functions, in the collider's own frame ------------------------------------------
+
+@ti.func
+def analytic_distance(kind, a, b, radius, p):
+    """(signed distance [m], outward unit normal) of point p from analytic collider (kind, a, b, r)."""
+    d = 0.0
+    n = vec3(0.0, 0.0, 1.0)
+    if kind == SPHERE:
+        d, n = sphere_distance(p - a, radius)
+    elif kind == ELLIPSOID:
+        q = p - a
+        k0 = (q / b).norm()
+        k1 = (q / (b * b)).norm()
+        d = k0 * (k0 - 1.0) / ti.max(k1, 1e-12)
+        n = safe_normal(q / (b * b), n)
+    elif kind == CAPSULE:
+        ab = b - a
+        t = ti.math.clamp((p - a).dot(ab) / ti.max(ab.dot(ab), 1e-12), 0.0, 1.0)
+        q = p - (a + t * ab)
+        d = q.norm() - radius
+        n = safe_normal(q, n)
+    else:  # PLANE: a point on it, b its unit normal
+        d = (p - a).dot(b)
+        n = b
+    return d, n
+
+
+@ti.func
+def sphere_distance(q, radius):
+    """(signed distance [m], outward unit normal) of offset q [m] from a sphere's centre."""
+    return q.norm() - radius, safe_normal(q, vec3(0.0, 0.0, 1.0))
+
+
+@ti.func
+def safe_normal(q, fallback):
+    result = fallback
+    length = q.norm()
+    if length > 1e-12:
+        result = q / length
+    return result
+
+
+@ti.func
+def grid_value(values: ti.template(), i, j, k):
+    nx, ny, nz = values.shape[0], values.shape[1], values.shape[2]
+    return values[ti.math.clamp(i, 0, nx - 1), ti.math.clamp(j, 0, ny - 1), ti.math.clamp(k, 0, nz - 1)]
+
+
+@ti.func
+def grid_distance(values: ti.template(), origin, spacing, p):
+    """Trilinear signed distance [m] and unit gradient of a distance grid at p (clamped to the
+    grid's box: outside it, the box's boundary values, which are positive by construction)."""
+    g = (p - origin) / spacing
+    base = ti.floor(g, ti.i32)
+    f = g - base
+    d = 0.0
+    grad = vec3(0.0)
+    for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
+        w = vec3(ti.select(c[0] == 1, f[0], 1.0 - f[0]), ti.select(c[1] == 1, f[1], 1.0 - f[1]),
+                 ti.select(c[2] == 1, f[2], 1.0 - f[2]))
+        value = grid_value(values, base[0] + c[0], base[1] + c[1], base[2] + c[2])
+        d += w[0] * w[1] * w[2] * value
+        sign = vec3(ti.select(c[0] == 1, 1.0, -1.0), ti.select(c[1] == 1, 1.0, -1.0),
+                    ti.select(c[2] == 1, 1.0, -1.0))
+        grad += value * sign * vec3(w[1] * w[2], w[0] * w[2], w[0] * w[1])
+    return d, safe_normal(grad, vec3(0.0, 0.0, 1.0))
+
+
+def pack_colliders(colliders):
+    """Kernel arrays for the analytic colliders: kinds [C] int, geometry [C, 2] vec3 (a, b),
+    params [C] vec4 (radius, margin, friction, attached to head 1/0). Mesh colliders go apart."""
+    analytic = [c for c in colliders if not isinstance(c, MeshCollider)]
+    kinds = np.array([c.packed()[0] for c in analytic] or [0], dtype=np.int32)
+    geometry = np.zeros((max(len(analytic), 1), 2, 3))
+    params = np.zeros((max(len(analytic), 1), 4))
+    for k, c in enumerate(analytic):
+        _, a, b, radius = c.packed()
+        geometry[k] = [a, b]
+        params[k] = [radius, c.margin, c.friction, 1.0 if c.attached == "head" else 0.0]
+    return len(analytic), kinds, geometry, params
