@@ -2,7 +2,7 @@
 into the small Taichi arrays the step kernels read. Built once per simulator; per launch only
 the head poses and tool positions change."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,7 @@ class Control:
     tool_points: object
     max_speed: float
     time: float = 0.0
+    host: dict = field(default_factory=dict)  # numpy twins of head and tool_points (load_poses)
 
 
 def build_control(gravity, wind, drag, colliders, touch, max_speed) -> tuple[Control, dict]:
@@ -79,10 +80,11 @@ def build_control(gravity, wind, drag, colliders, touch, max_speed) -> tuple[Con
 
 
 def load_poses(control: Control, poses: np.ndarray) -> None:
-    """Head poses [K+1, 4, 3] into the head buffer (rows past K+1 are left as they were)."""
-    buffer = control.head.to_numpy()
+    """Head poses [K+1, 4, 3] into the head buffer (rows past K+1 are left as they were). The
+    host copy is kept between launches: reading the device buffer back cost as much as writing."""
+    buffer = _host_copy(control, "head")
     buffer[: len(poses)] = poses
-    control.head.from_numpy(buffer.astype(arrays.np_float()))
+    control.head.from_numpy(buffer)
 
 
 def load_tools(control: Control, touch, times) -> None:
@@ -90,6 +92,15 @@ def load_tools(control: Control, touch, times) -> None:
     if not touch:
         return
     _, positions = touch_table(touch, times)
-    buffer = control.tool_points.to_numpy()
+    buffer = _host_copy(control, "tool_points")
     buffer[: len(times)] = positions
-    control.tool_points.from_numpy(buffer.astype(arrays.np_float()))
+    control.tool_points.from_numpy(buffer)
+
+
+def _host_copy(control: Control, name: str) -> np.ndarray:
+    """The numpy twin of control.<name> (made on first use from the device array), in the
+    arrays' float type."""
+    host = control.host.get(name)
+    if host is None:
+        host = control.host[name] = getattr(control, name).to_numpy().astype(arrays.np_float())
+    return host

@@ -14,6 +14,7 @@ after step k-1; a static head passes [prev, now] and uses now for every step aft
 """
 
 from contextlib import nullcontext
+import functools
 from dataclasses import asdict, dataclass
 
 import taichi as ti
@@ -82,7 +83,9 @@ class StepPlan:
 # Every step kernel takes the same five bundles (Taichi argpacks of ndarrays) instead of loose
 # arrays: what never changes in a run (ModelArgs), what each step changes (StateArgs), what
 # drives it (DriveArgs: head poses, loads, wind tables, tools, user forces, pins), what it
-# collides with (ContactArgs), and the launch's scalars (StepScalars). A bundle is built once
+# collides with (ContactArgs), and the launch's scalars (StepScalars: passed as plain numbers,
+# since building a Taichi struct in Python costs about 0.2 ms, and gathered into the struct
+# inside the kernel, where it is free). A bundle is built once
 # per simulator (StepBundles): building one costs about what a launch does, passing a built
 # one costs the same as passing its arrays one by one (measured in docs/architecture.md).
 
@@ -121,6 +124,7 @@ class StageFlags:
     root_mode: int
 
 
+@functools.lru_cache(maxsize=256)
 def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False, pins: bool = False,
                 **overrides) -> StageFlags:
     """The flags of `plan` for one launch."""
@@ -172,12 +176,12 @@ class StepBundles:
         return self._drive
 
 
-def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)):
-    """The launch's scalars: step h [s] from control.time; pins pin_fraction = (f0, df)."""
-    return StepScalars(h=h, t0=control.time, drag=control.drag, max_speed=control.max_speed,
-                       projection_tol=plan.projection_tol, projection_iterations=plan.projection_iterations,
-                       twist_tol=plan.twist_tol, twist_iterations=plan.twist_iterations,
-                       n_analytic=plan.n_analytic, pin_f0=pin_fraction[0], pin_df=pin_fraction[1])
+def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
+    """The launch's scalars, in StepScalars' field order: step h [s] from control.time; pins
+    pin_fraction = (f0, df)."""
+    return (h, control.time, control.drag, control.max_speed, plan.projection_tol,
+            plan.projection_iterations, plan.twist_tol, plan.twist_iterations, plan.n_analytic,
+            pin_fraction[0], pin_fraction[1])
 
 
 # ---- per-strand helpers ------------------------------------------------------------------------
@@ -451,11 +455,16 @@ _STAGE_FUNCS = tuple(func for _, func in STAGES)
 # ---- the fused driver: many steps in one launch -------------------------------------------------
 
 @ti.kernel
-def advance_strands(n_steps: int, fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
-                    dr: DriveArgs, co: ContactArgs):
+def advance_strands(n_steps: int, fl: ti.template(), h: float, t0: float, drag: float, max_speed: float,
+                    projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
+                    twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+                    md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """n_steps steps of sc.h [s] from time sc.t0 for every strand (head poses as in the module
     doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
     step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
+    sc = StepScalars(h=h, t0=t0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
     for s in range(st.x.shape[0]):
         st.counters[s, BAD] = -1
         for k in range(n_steps):
@@ -483,17 +492,22 @@ def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: in
     arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
     flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
                         pins=pins is not None)
-    advance_strands(n_steps, flags, step_scalars(plan, control, h, fraction), bundles.model,
+    advance_strands(n_steps, flags, *step_scalars(plan, control, h, fraction), bundles.model,
                     bundles.state, bundles.drive(arrays_), bundles.contacts)
 
 
 # ---- the staged driver: one kernel per stage (benchmark breakdown; hair-hair interaction) -------
 
 @ti.kernel
-def run_stage(stage: ti.template(), fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs,
-              dr: DriveArgs, co: ContactArgs):
+def run_stage(stage: ti.template(), fl: ti.template(), h: float, t0: float, drag: float, max_speed: float,
+                    projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
+                    twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+              md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """One stage of a one-step launch for every strand; counters[s, BAD] = 0 where it failed.
     One thread per strand."""
+    sc = StepScalars(h=h, t0=t0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
     for s in range(st.x.shape[0]):
         if stage(s, 0, fl, sc, md, st, dr, co):
             st.counters[s, BAD] = 0
@@ -527,7 +541,7 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
     clear_bad(state.counters)
     for name, stage in STAGES:
         with stage_timer(name):
-            run_stage(stage, flags, scalars, bundles.model, bundles.state, drive, bundles.contacts)
+            run_stage(stage, flags, *scalars, bundles.model, bundles.state, drive, bundles.contacts)
         if name == "forces" and interaction is not None:
             with stage_timer("hair-hair"):
                 interaction(model, state, control, h)
@@ -538,13 +552,17 @@ def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) 
     contact solve."""
     flags = stage_flags(plan, contacts=True, pins=False)
     clear_bad(bundles.state.counters)
-    run_stage(stage_project, flags, step_scalars(plan, control, h), bundles.model, bundles.state,
+    run_stage(stage_project, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
               bundles.drive(), bundles.contacts)
 
 
 @ti.kernel
-def update_twist_kernel(fl: ti.template(), sc: StepScalars, md: ModelArgs, st: StateArgs):
+def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: ti.i32, md: ModelArgs,
+                        st: StateArgs):
     """The twist stage alone; counters[s, BAD] = 0 where it failed, else -1."""
+    sc = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+                     twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=0.0,
+                     pin_df=0.0)
     for s in range(st.theta.shape[0]):
         st.counters[s, BAD] = -1
         if strand_twist(s, fl, sc, md, st):
@@ -571,10 +589,7 @@ def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: flo
     flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
                        moving_head=False, contacts=False, mesh=False, touch=False, pins=False,
                        root_mode=ROOT_CODES[root])
-    scalars = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
-                          twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0,
-                          pin_f0=0.0, pin_df=0.0)
-    update_twist_kernel(flags, scalars, bundles.model, bundles.state)
+    update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state)
 
 
 @ti.kernel
