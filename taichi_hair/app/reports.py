@@ -50,8 +50,6 @@ from pathlib import Path
 
 import numpy as np
 
-from render import write_png
-from render.plot import PALETTE, Series, loglog
 
 from .. import runtime
 from ..world.forces import Wind
@@ -451,6 +449,7 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
               "timing": f"wall_s: median of {sweep.repeats} timed runs of the stepping (1 if a run "
                         "takes over 2 s) after a warm-up run of the same configuration (compile excluded)"}
     Path(result["json"]).write_text(json.dumps(result, indent=1))
+    from render import write_png  # the renderer loads only where a figure is drawn
     write_png(result["png"], accuracy_figure(result).image)
     return result
 
@@ -463,6 +462,7 @@ CASE_COLOURS = {("cantilever", "none"): 0, ("frequency", "none"): 2, ("helix", "
 def accuracy_figure(result: dict):
     """Log error vs log wall time: a line per (case, twist, precision) through its segment counts
     (solid float64, dashed float32), and unjoined markers for the time-step sweep."""
+    from render.plot import PALETTE, Series, loglog
     sweep, series = result["sweep"], []
     keys = sorted({(r["case"], r["twist"], r["precision"]) for r in result["rows"]})
     for case, twist, prec in keys:

@@ -12,7 +12,8 @@ from ..rods import arrays
 from ..rods.groom import Groom
 from ..progress import ProgressBar
 from ..runtime import ensure_init, precision
-from .stability import DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, stable_time_step, wind_bound
+from .stability import (DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, scene_bound,
+                        stable_time_step, substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
 from ..world.scene import _host_distance, check_common_inputs
@@ -21,6 +22,7 @@ from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
 from .pins import ROOT_MODES, PinTable
 from ..rods.state import COUNTERS
+from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
@@ -102,11 +104,7 @@ class Simulator:
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
-        self.stable_dt = stable_time_step(groom, self.model.materials, drag,
-                                          _positive("stability_factor", stability_factor, "", upper=2.0),
-                                          kmoch=twist == "kmoch")
-        self.stable_dt = min([self.stable_dt] + [_grab_bound(self.model, g, stability_factor)
-                                                 for g in self.touch if isinstance(g, Grab)])
+        stability_factor = _positive("stability_factor", stability_factor, "", upper=2.0)
         self.control, facts = build_control(_vector3("gravity", gravity),
                                             wind if isinstance(wind, Wind) else _vector3("wind", wind),
                                             drag, tuple(colliders), self.touch,
@@ -114,10 +112,13 @@ class Simulator:
         if facts["wind"] and drag == 0:
             raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
                              "(human hair in air: about 1e-4 to 1e-3)")
-        self.stable_dt = min(self.stable_dt, wind_bound(groom, _max_air_speed(wind), stability_factor))
         self.max_substeps = _check_max_substeps(max_substeps)
-        self._bound_inputs = (drag, wind, stability_factor)
-        self.substeps = self._substeps_for(strict)
+        lightest = float(self.model.mass.to_numpy()[self.model.inv_mass.to_numpy() > 0].min())
+        self.bound = scene_bound(groom, self.model.materials, drag=drag, air_speed=_max_air_speed(wind),
+                                 grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
+                                        if isinstance(g, Grab)],
+                                 factor=stability_factor, kmoch=twist == "kmoch")
+        self.substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
             wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
@@ -155,48 +156,10 @@ class Simulator:
         touch tools and hair interaction; `options` go to the constructor (twist, drag, ...)."""
         return cls(scene.groom, scene.material, dt=dt, **{**scene.simulator_options(), **options})
 
-    def _substeps_for(self, strict: bool) -> int:
-        """Substeps per step so that each is within the bound (the caller warns once), or raise."""
-        if self.dt <= self.stable_dt:
-            return 1
-        if strict:
-            raise ValueError(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
-                             f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, "
-                             f"grab springs and the starting shape); lower dt or pass strict=False to "
-                             f"substep automatically")
-        substeps = math.ceil(self.dt / self.stable_dt)
-        if substeps > self.max_substeps:
-            raise ValueError(f"dt = {self.dt:.3g} s would need {substeps} substeps of at most "
-                             f"{self.stable_dt:.3g} s, more than max_substeps = {self.max_substeps}; the "
-                             f"stability bound is set by {self._bound_cause()}. Change that, lower dt, or "
-                             f"raise max_substeps")
-        return substeps
-
-    def _bound_cause(self) -> str:
-        """Which input sets stable_dt, in words naming the parameter (for the substep refusal).
-        Drag is named when it at least halves the bending bound; the start shape when contacts
-        tightened the bound below every input's own."""
-        drag, wind, factor = self._bound_inputs
-        materials, kmoch = self.model.materials, self.twist == "kmoch"
-        bend = stable_time_step(self.groom, materials, 0.0, factor, kmoch=kmoch)
-        with_drag = stable_time_step(self.groom, materials, drag, factor, kmoch=kmoch)
-        plain = stable_time_step(self.groom, materials, drag, factor) if kmoch else with_drag
-        if with_drag < 0.5 * bend:
-            candidates = [(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)")]
-        else:
-            rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
-                    f"bending bound {plain:.3g} s)" if with_drag < plain else "")
-            candidates = [(with_drag, "the material's bending stiffness (youngs_modulus, radius) over the "
-                                      "shortest segment and the sharpest rest turn of the groom" + rule)]
-        air = _max_air_speed(wind)
-        candidates.append((wind_bound(self.groom, air, factor),
-                           f"the wind (fastest air {air:.3g} m/s must not move a node a segment per step)"))
-        candidates += [(_grab_bound(self.model, g, factor), f"touch[{k}].stiffness = {g.stiffness:g} N/m")
-                       for k, g in enumerate(self.touch) if isinstance(g, Grab)]
-        bound, cause = min(candidates, key=lambda c: c[0])
-        if bound > 1.01 * self.stable_dt:
-            return "the shape the colliders left the groom in at the start (sharp bends)"
-        return cause
+    @property
+    def stable_dt(self) -> float:
+        """The explicit step's stability bound [s] (self.bound: with what sets it)."""
+        return self.bound.dt
 
     # ---- head transform -----------------------------------------------------------------
     def _head_at(self, t: float):
@@ -213,7 +176,7 @@ class Simulator:
         """Head poses loaded; root reference frames at the current head pose (root nodes
         untouched), unless the root is pinned: its reference is carried in time by the steps
         (reference=True forces it, for the initial pose)."""
-        load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
+        load_poses(self.control, np.stack([pose_rows(*self._head_prev), pose_rows(*self._head)]))
         st, md = self.state, self.model
         if reference or (reference is None and not self.plan.pinned_root):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
@@ -242,7 +205,7 @@ class Simulator:
         step, so the correction does not turn into a velocity kick (the push over one substep
         would read as metres per second)."""
         st, c = self.state, self.control
-        load_poses(c, np.stack([_pose(*self._head), _pose(*self._head)]))
+        load_poses(c, np.stack([pose_rows(*self._head), pose_rows(*self._head)]))
         load_tools(c, self.touch, np.full(2, self.time))
         st.x_prev.copy_from(st.x)
         # A strand groomed into the head may need many more iterations than one step allows;
@@ -266,11 +229,11 @@ class Simulator:
         """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
         x = self.positions()
         start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
-        bound = stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
-                                 kmoch=self.twist == "kmoch")
-        if bound < self.stable_dt:
-            self.stable_dt = bound
-            self.substeps = self._substeps_for(strict)
+        self.bound = self.bound.tightened(
+            stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
+                             kmoch=self.twist == "kmoch"),
+            "the shape the colliders left the groom in at the start (sharp bends)")
+        self.substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
 
     @property
     def head_transform(self):
@@ -355,9 +318,9 @@ class Simulator:
         if self.root_motion is not None:
             poses = [self._head_prev] + [self._head_at(t) for t in times[1:]]
             self._head = poses[-1]
-            load_poses(self.control, np.stack([_pose(*p) for p in poses]))
+            load_poses(self.control, np.stack([pose_rows(*p) for p in poses]))
         else:
-            load_poses(self.control, np.stack([_pose(*self._head_prev), _pose(*self._head)]))
+            load_poses(self.control, np.stack([pose_rows(*self._head_prev), pose_rows(*self._head)]))
         load_tools(self.control, self.touch, times)
         return self.root_motion is not None and count > 1
 
@@ -415,49 +378,14 @@ class Simulator:
             f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
             step=step, strand=int(first))
 
-    # ---- checkpoints --------------------------------------------------------------------
+    # ---- checkpoints (checkpoint.py) ------------------------------------------------------
     def save_state(self, path, extra=None) -> None:
-        """Write the dynamic state (positions, velocities, material angles, time, step count,
-        head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
-        crash mid-write leaves the previous checkpoint intact. `extra`: a dict of numbers or
-        arrays stored alongside as `extra_<name>` (the runner's frame count), part of the same
-        atomic record; `load_state` ignores them."""
-        import os
-        path = os.fspath(path)
-        tmp = path + ".tmp.npz"
-        np.savez(tmp, **{f"extra_{k}": v for k, v in (extra or {}).items()},
-                 x=self.state.x.to_numpy(), v=self.state.v.to_numpy(),
-                 theta=self.state.theta.to_numpy(), root_t=self.state.root_t.to_numpy(),
-                 root_u=self.state.root_u.to_numpy(), time=self.time, steps=self.steps_taken,
-                 head=_pose(*self._head), head_prev=_pose(*self._head_prev),
-                 shape=np.array([self.groom.n_strands, self.groom.max_nodes]))
-        os.replace(tmp, path)
+        """Write the dynamic state to `path` (.npz) atomically; see checkpoint.save_state."""
+        save_state(self, path, extra)
 
     def load_state(self, path) -> None:
-        """Restore a state written by `save_state` for this same groom; ValueError if the file
-        does not fit (other strand or node counts, missing arrays, non-finite values)."""
-        try:
-            with np.load(path) as data:
-                saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
-                saved.update({k: data[k] for k in ("root_t", "root_u") if k in data})  # older files lack them
-        except (OSError, KeyError, ValueError) as err:
-            raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
-        expected = [self.groom.n_strands, self.groom.max_nodes]
-        if list(saved["shape"]) != expected:
-            raise ValueError(f"{path}: state of {list(saved['shape'])} strands x nodes, this groom has {expected}")
-        if not all(np.all(np.isfinite(saved[k])) for k in ("x", "v", "theta")):
-            raise ValueError(f"{path}: the saved state has non-finite values")
-        self.state.x.from_numpy(saved["x"].astype(arrays.np_float()))
-        self.state.v.from_numpy(saved["v"].astype(arrays.np_float()))
-        self.state.theta.from_numpy(saved["theta"].astype(arrays.np_float()))
-        self.time, self.steps_taken = float(saved["time"]), int(saved["steps"])
-        self._head = (saved["head"][:3].astype(np.float64), saved["head"][3].astype(np.float64))
-        self._head_prev = (saved["head_prev"][:3].astype(np.float64), saved["head_prev"][3].astype(np.float64))
-        for k in ("root_t", "root_u"):
-            if k in saved:
-                getattr(self.state, k).from_numpy(saved[k].astype(arrays.np_float()))
-        self._orient_roots()
-        self.update_frames()
+        """Restore a state written by `save_state` for this same groom; see checkpoint.load_state."""
+        load_state(self, path)
 
     def set_user_forces(self, force) -> None:
         """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
@@ -611,17 +539,6 @@ def _max_air_speed(wind) -> float:
     if isinstance(wind, Wind):
         return (float(np.linalg.norm(wind.velocity)) * (1.0 + wind.gust_amplitude) + 3.0 * wind.turbulence)
     return float(np.linalg.norm(wind))
-
-
-def _pose(rotation, translation):
-    """[4, 3]: rows of R, then t."""
-    return np.vstack([rotation, translation])
-
-
-def _grab_bound(model, grab, factor):
-    """Explicit stability of a grab spring k on the lightest free node: h < 2 factor sqrt(m / k)."""
-    masses = model.mass.to_numpy()[model.inv_mass.to_numpy() > 0]
-    return 2.0 * factor * math.sqrt(masses.min() / grab.stiffness)
 
 
 def _check_max_substeps(value) -> int:

@@ -1,6 +1,7 @@
 """The explicit step's stability bound, and what to say when a run blows up anyway."""
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -71,6 +72,64 @@ def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FA
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
     return factor * shortest / max_air_speed
+
+
+@dataclass(frozen=True)
+class StabilityBound:
+    """The explicit step's bound dt [s] and, in words naming the parameter, what sets it."""
+
+    dt: float
+    cause: str
+
+    def tightened(self, dt: float, cause: str) -> "StabilityBound":
+        """This bound, or (dt, cause) where that is tighter."""
+        return self if dt >= self.dt else StabilityBound(dt, cause)
+
+
+def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), factor: float,
+                kmoch: bool) -> StabilityBound:
+    """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
+    the wind (air_speed [m/s], the fastest air), each grab spring (grabs: (name, stiffness
+    [N/m], lightest free node's mass [kg])); its cause names the parameter that sets it. Drag is
+    named when it at least halves the bending bound."""
+    bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch)
+    with_drag = stable_time_step(groom, materials, drag, factor, kmoch=kmoch)
+    plain = stable_time_step(groom, materials, drag, factor) if kmoch else with_drag
+    if with_drag < 0.5 * bend:
+        candidates = [StabilityBound(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound "
+                                                f"alone is {bend:.3g} s)")]
+    else:
+        rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
+                f"bending bound {plain:.3g} s)" if with_drag < plain else "")
+        candidates = [StabilityBound(with_drag, "the material's bending stiffness (youngs_modulus, radius) "
+                                                "over the shortest segment and the sharpest rest turn of "
+                                                "the groom" + rule)]
+    candidates.append(StabilityBound(wind_bound(groom, air_speed, factor),
+                                     f"the wind (fastest air {air_speed:.3g} m/s must not move a node a "
+                                     f"segment per step)"))
+    # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k)
+    candidates += [StabilityBound(2.0 * factor * math.sqrt(mass / k), f"{name}.stiffness = {k:g} N/m")
+                   for name, k, mass in grabs]
+    return min(candidates, key=lambda b: b.dt)
+
+
+def substeps_for(dt: float, bound: StabilityBound, strict: bool, max_substeps: int) -> int:
+    """Substeps per step of dt [s] so that each is within the bound, or ValueError: past the
+    bound with strict=True, or more than max_substeps."""
+    if dt <= bound.dt:
+        return 1
+    if strict:
+        raise ValueError(f"dt = {dt:.3g} s exceeds this scene's explicit stability bound "
+                         f"{bound.dt:.3g} s (from the stiffest material, shortest segment, drag, "
+                         f"grab springs and the starting shape); lower dt or pass strict=False to "
+                         f"substep automatically")
+    substeps = math.ceil(dt / bound.dt)
+    if substeps > max_substeps:
+        raise ValueError(f"dt = {dt:.3g} s would need {substeps} substeps of at most "
+                         f"{bound.dt:.3g} s, more than max_substeps = {max_substeps}; the "
+                         f"stability bound is set by {bound.cause}. Change that, lower dt, or "
+                         f"raise max_substeps")
+    return substeps
 
 
 def likely_cause(dt_used: float, bound: float, cap_hits: int, max_speed: float,
