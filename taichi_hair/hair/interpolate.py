@@ -30,6 +30,7 @@ import numpy as np
 import taichi as ti
 
 from ..rods.frames import parallel_transport
+from ..rods.linalg import rotate_rows, unrotate_rows
 from ..runtime import ensure_init, precision
 from ..validation import is_real
 from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
@@ -50,13 +51,13 @@ Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # `float` resolves when the ke
 @ti.func
 def _rotate(head: ti.template(), v):
     """R v for the head pose head[0..2] = rows of R (head[3] = t is not used)."""
-    return vec3(head[0].dot(v), head[1].dot(v), head[2].dot(v))
+    return rotate_rows(head[0], head[1], head[2], v)
 
 
 @ti.func
 def _unrotate(head: ti.template(), v):
     """R^T v for the head pose head[0..2] = rows of R."""
-    return v[0] * head[0] + v[1] * head[1] + v[2] * head[2]
+    return unrotate_rows(head[0], head[1], head[2], v)
 
 
 @ti.kernel

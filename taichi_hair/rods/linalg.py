@@ -26,3 +26,15 @@ def back_substitute(s, first, last, diag: ti.template(), upper: ti.template(), r
         if j < last:
             nxt = upper[s, j] * rhs[s, j + 1]
         rhs[s, j] = (rhs[s, j] - nxt) / diag[s, j]
+
+
+@ti.func
+def rotate_rows(r0, r1, r2, p):
+    """R p for the rotation R given by its rows r0, r1, r2 (how head poses are stored)."""
+    return ti.Vector([r0.dot(p), r1.dot(p), r2.dot(p)])
+
+
+@ti.func
+def unrotate_rows(r0, r1, r2, p):
+    """R^T p for the rotation R given by its rows."""
+    return p[0] * r0 + p[1] * r1 + p[2] * r2

@@ -3,22 +3,27 @@ projection (see step.strand_project), alternating with the inextensibility solve
 
 import taichi as ti
 
-from ..rods.arrays import vec3
+from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
 
 
 @ti.func
+def head_rotate(head: ti.template(), k, p):
+    """R p: vector p turned by head pose k's rotation (head[k, 0..2] its rows, head[k, 3] t)."""
+    return rotate_rows(head[k, 0], head[k, 1], head[k, 2], p)
+
+
+@ti.func
 def to_head(head: ti.template(), k, p):
     """R^T (p - t): world point p [m] in head coordinates at head pose k."""
-    q = p - head[k, 3]
-    return q[0] * head[k, 0] + q[1] * head[k, 1] + q[2] * head[k, 2]
+    return unrotate_rows(head[k, 0], head[k, 1], head[k, 2], p - head[k, 3])
 
 
 @ti.func
 def from_head(head: ti.template(), k, p):
     """R p + t: head-coordinate point p [m] in the world at head pose k."""
-    return vec3(head[k, 0].dot(p), head[k, 1].dot(p), head[k, 2].dot(p)) + head[k, 3]
+    return head_rotate(head, k, p) + head[k, 3]
 
 
 @ti.func

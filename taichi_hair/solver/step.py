@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 import taichi as ti
 
 from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
-from .collisions import strand_collide
+from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -230,21 +230,16 @@ def strand_symplectic_euler(s, h, md: ti.template(), st: ti.template()):
 
 
 @ti.func
-def rotate(head: ti.template(), k, p):
-    return vec3(head[k, 0].dot(p), head[k, 1].dot(p), head[k, 2].dot(p))
-
-
-@ti.func
 def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: ti.template(),
                       root_t: ti.template(), root_u: ti.template(), root_mode: ti.template()):
     """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
     clamp that node 0 bends and twists against and from which the Bishop frames start, turns
     with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
     for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
-        x[s, node] = rotate(head, k, root_frame[s, node]) + head[k, 3]
+        x[s, node] = head_rotate(head, k, root_frame[s, node]) + head[k, 3]
     if ti.static(root_mode != 1):
-        root_t[s] = rotate(head, k, root_frame[s, 2])
-        root_u[s] = rotate(head, k, root_frame[s, 3])
+        root_t[s] = head_rotate(head, k, root_frame[s, 2])
+        root_u[s] = head_rotate(head, k, root_frame[s, 3])
 
 
 @ti.func
