@@ -38,3 +38,26 @@ def rotate_rows(r0, r1, r2, p):
 def unrotate_rows(r0, r1, r2, p):
     """R^T p for the rotation R given by its rows."""
     return p[0] * r0 + p[1] * r1 + p[2] * r2
+
+
+@ti.func
+def grid_cell(g):
+    """(lower corner index, fraction within the cell) of grid coordinates g [3]: the cell of a
+    trilinear interpolation."""
+    base = ti.floor(g, ti.i32)
+    return base, g - base
+
+
+@ti.func
+def corner_factors(c, f):
+    """The per-axis trilinear factors [3] of cell corner c (0 or 1 per axis) at fraction f: the
+    corner's weight is their product."""
+    return ti.Vector([ti.select(c[0] == 1, f[0], 1.0 - f[0]), ti.select(c[1] == 1, f[1], 1.0 - f[1]),
+                      ti.select(c[2] == 1, f[2], 1.0 - f[2])])
+
+
+@ti.func
+def corner_signs(c):
+    """d(factor)/d(fraction) per axis for corner c: +1 where c is 1, -1 where it is 0."""
+    return ti.Vector([ti.select(c[0] == 1, 1.0, -1.0), ti.select(c[1] == 1, 1.0, -1.0),
+                      ti.select(c[2] == 1, 1.0, -1.0)])

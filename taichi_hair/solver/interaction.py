@@ -14,6 +14,7 @@ import taichi as ti
 
 from ..rods import arrays
 from ..rods.arrays import Ints1, Scalars2, Scalars3, Vec3s1, Vec3s2, vec3
+from ..rods.linalg import corner_factors, corner_signs, grid_cell
 from ..world.forces import HairInteraction
 
 Vec3s3 = ti.types.ndarray(dtype=vec3, ndim=3)
@@ -21,9 +22,9 @@ Vec3s3 = ti.types.ndarray(dtype=vec3, ndim=3)
 
 @ti.func
 def cell_weights(x, origin, spacing):
-    g = (x - origin) / spacing - 0.5  # cell centres at origin + (i + 1/2) spacing
-    base = ti.floor(g, ti.i32)
-    return base, g - base
+    """The trilinear cell of point x [m] on a grid of cells whose centres sit at
+    origin + (i + 1/2) spacing."""
+    return grid_cell((x - origin) / spacing - 0.5)
 
 
 @ti.func
@@ -49,8 +50,8 @@ def splat(node_count: Ints1, mass: Scalars2, x: Vec3s2, v: Vec3s2, frame: Vec3s1
         if i < node_count[s]:
             base, f = cell_weights(x[s, i], frame[0], spacing)
             for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
-                w = (ti.select(c[0] == 1, f[0], 1.0 - f[0]) * ti.select(c[1] == 1, f[1], 1.0 - f[1])
-                     * ti.select(c[2] == 1, f[2], 1.0 - f[2]))
+                factors = corner_factors(c, f)
+                w = factors[0] * factors[1] * factors[2]
                 cell = base + c
                 if inside(density, cell[0], cell[1], cell[2]):
                     density[cell[0], cell[1], cell[2]] += w * mass[s, i] * inv_volume
@@ -71,10 +72,8 @@ def apply_interaction(node_count: Ints1, inv_mass: Scalars2, mass: Scalars2, x: 
             p = vec3(0.0)
             grad = vec3(0.0)
             for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
-                w3 = vec3(ti.select(c[0] == 1, f[0], 1.0 - f[0]), ti.select(c[1] == 1, f[1], 1.0 - f[1]),
-                          ti.select(c[2] == 1, f[2], 1.0 - f[2]))
-                sign = vec3(ti.select(c[0] == 1, 1.0, -1.0), ti.select(c[1] == 1, 1.0, -1.0),
-                            ti.select(c[2] == 1, 1.0, -1.0))
+                w3 = corner_factors(c, f)
+                sign = corner_signs(c)
                 cell = base + c
                 if inside(density, cell[0], cell[1], cell[2]):
                     value = density[cell[0], cell[1], cell[2]]

@@ -15,6 +15,7 @@ import numpy as np
 import taichi as ti
 
 from ..rods.arrays import vec3
+from ..rods.linalg import corner_factors, corner_signs, grid_cell
 from ..validation import is_real
 
 SPHERE, ELLIPSOID, CAPSULE, PLANE = 0, 1, 2, 3
@@ -192,19 +193,14 @@ def grid_value(values: ti.template(), i, j, k):
 def grid_distance(values: ti.template(), origin, spacing, p):
     """Trilinear signed distance [m] and unit gradient of a distance grid at p (clamped to the
     grid's box: outside it, the box's boundary values, which are positive by construction)."""
-    g = (p - origin) / spacing
-    base = ti.floor(g, ti.i32)
-    f = g - base
+    base, f = grid_cell((p - origin) / spacing)
     d = 0.0
     grad = vec3(0.0)
     for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
-        w = vec3(ti.select(c[0] == 1, f[0], 1.0 - f[0]), ti.select(c[1] == 1, f[1], 1.0 - f[1]),
-                 ti.select(c[2] == 1, f[2], 1.0 - f[2]))
+        w = corner_factors(c, f)
         value = grid_value(values, base[0] + c[0], base[1] + c[1], base[2] + c[2])
         d += w[0] * w[1] * w[2] * value
-        sign = vec3(ti.select(c[0] == 1, 1.0, -1.0), ti.select(c[1] == 1, 1.0, -1.0),
-                    ti.select(c[2] == 1, 1.0, -1.0))
-        grad += value * sign * vec3(w[1] * w[2], w[0] * w[2], w[0] * w[1])
+        grad += value * corner_signs(c) * vec3(w[1] * w[2], w[0] * w[2], w[0] * w[1])
     return d, safe_normal(grad, vec3(0.0, 0.0, 1.0))
 
 
