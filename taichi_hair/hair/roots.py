@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..rods.groom import Groom
+from ..rods.groom import Groom, arc_lengths, resample_by_arc_length
 from ..world.headmesh import HeadModel
 
 STYLES = ("straight", "wavy", "curly")
@@ -229,15 +229,11 @@ def _offsets(style, s, d, side, params, rng):
 
 def _resample(curve, lengths, n_nodes):
     """Nodes [S, n_nodes, 3] evenly spaced in arc length over the first lengths[s] metres."""
-    seg = np.linalg.norm(np.diff(curve, axis=1), axis=2)
-    arc = np.concatenate([np.zeros((len(curve), 1)), np.cumsum(seg, axis=1)], axis=1)
     out = np.empty((len(curve), n_nodes, 3))
     for i in range(len(curve)):
-        if arc[i, -1] < lengths[i] * (1.0 - 1e-9):
+        if arc_lengths(curve[i])[-1] < lengths[i] * (1.0 - 1e-9):
             raise RuntimeError("fine curve shorter than its strand; the length bound is wrong")
-        targets = np.linspace(0.0, lengths[i], n_nodes)
-        for k in range(3):
-            out[i, :, k] = np.interp(targets, arc[i], curve[i, :, k])
+        out[i] = resample_by_arc_length(curve[i], lengths[i], n_nodes)
     return out
 
 

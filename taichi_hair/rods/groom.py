@@ -194,10 +194,19 @@ def _procedural(roots, directions, length, n_nodes, offset):
     local = np.zeros((len(fine), 3))
     local[:, 2] = fine
     local[:, 0] = offset(fine)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(local, axis=0), axis=1))])
-    targets = np.linspace(0.0, length, n_nodes)
-    resampled = np.stack([np.interp(targets, arc, local[:, k]) for k in range(3)], axis=1)
-    return _place(resampled, roots, directions)
+    return _place(resample_by_arc_length(local, length, n_nodes), roots, directions)
+
+
+def arc_lengths(curve) -> np.ndarray:
+    """Arc length [M] m from the first point of the polyline curve [M, 3] to each of its points."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+
+
+def resample_by_arc_length(curve, length, n_nodes) -> np.ndarray:
+    """n_nodes points [n_nodes, 3] evenly spaced in arc length over the first `length` metres
+    of the polyline curve [M, 3] (linear between its points)."""
+    arc, targets = arc_lengths(curve), np.linspace(0.0, length, n_nodes)
+    return np.stack([np.interp(targets, arc, curve[:, k]) for k in range(3)], axis=1)
 
 
 def _validate(positions, node_counts):
