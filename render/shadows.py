@@ -20,6 +20,11 @@ from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec
 from .raster import clear_keys_2d, key_depth, raster_triangles
 from .runtime import buffer, upload
 
+# fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
+# (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
+# 2^39 units (far more fibres than a head has) in an int64
+OPACITY_STEPS = 16777216.0
+
 
 @dataclass(frozen=True, kw_only=True)
 class ShadowSettings:
@@ -72,11 +77,13 @@ class ShadowMap(NamedTuple):
 
 @ti.kernel
 def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
-                 opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+                 opacity: ti.types.ndarray(dtype=f32, ndim=3),
+                 fixed: ti.types.ndarray(dtype=ti.i64, ndim=3)):
     for i, j in z0:
         z0[i, j] = f32(3.0e38)
         for k in range(opacity.shape[2]):
             opacity[i, j, k] = f32(0.0)
+            fixed[i, j, k] = 0
 
 
 @ti.func
@@ -130,10 +137,12 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                        width: ti.types.ndarray(dtype=f32, ndim=1), alpha: f32, texel: f32,
                        z0: ti.types.ndarray(dtype=f32, ndim=2),
                        bounds: ti.types.ndarray(dtype=f32, ndim=1),
-                       opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+                       fixed: ti.types.ndarray(dtype=ti.i64, ndim=3)):
     """Add each hair sample's opacity, alpha * (fraction of a texel its width [m] covers) *
-    (its length in texels), into the slab (R, R, L) that holds it behind its texel's z0."""
-    size, layers = z0.shape[0], opacity.shape[2]
+    (its length in texels), into the slab (R, R, L) that holds it behind its texel's z0: in
+    fixed point (OPACITY_STEPS per unit), whose integer sums do not depend on the order the
+    threads add in, so a frame renders to the same bytes every time (float atomics did not)."""
+    size, layers = z0.shape[0], fixed.shape[2]
     for e in range(n):
         k = seg[e]
         a, b = screen[k], screen[k + 1]
@@ -148,17 +157,20 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             slab = 0
             while slab < layers - 1 and bounds[slab + 1] <= dz:
                 slab += 1
-            opacity[j, i, slab] += alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
+            amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
+            ti.atomic_add(fixed[j, i, slab], ti.cast(ti.round(amount * OPACITY_STEPS), ti.i64))
 
 
 @ti.kernel
-def accumulate_slabs(opacity: ti.types.ndarray(dtype=f32, ndim=3)):
-    """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end."""
+def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
+                     opacity: ti.types.ndarray(dtype=f32, ndim=3)):
+    """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end
+    (from the fixed-point sums)."""
     for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
-        total = f32(0.0)
+        total = ti.i64(0)
         for k in range(opacity.shape[2]):
-            total += opacity[i, j, k]
-            opacity[i, j, k] = total
+            total += fixed[i, j, k]
+            opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
 
 
 @ti.func
@@ -275,8 +287,9 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     layers = settings.layers
     z0 = buffer("shadow_z0", f32, (r, r))
     opacity = buffer("shadow_opacity", f32, (r, r, layers))
+    fixed = buffer("shadow_opacity_fixed", ti.i64, (r, r, layers))
     mesh_key = buffer("shadow_mesh_key", ti.i64, (r, r))
-    clear_shadow(z0, opacity)
+    clear_shadow(z0, opacity, fixed)
     clear_keys_2d(mesh_key)
     if not enabled:
         bounds = upload("shadow_bounds", settings.bounds(1.0), f32)
@@ -298,8 +311,8 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
                          hair["width_px"])
         splat_hair_depth(hair["n_segments"], hair["seg"], ls, z0)
         splat_hair_opacity(hair["n_segments"], hair["seg"], ls, hair["width"], hair["opacity"],
-                           light.texel_size, z0, bounds, opacity)
-        accumulate_slabs(opacity)
+                           light.texel_size, z0, bounds, fixed)
+        accumulate_slabs(fixed, opacity)
     params = np.array([1.0, settings.density, 2.0 * light.texel_size, light.texel_size],
                       dtype=np.float32)
     return ShadowMap(view, proj, z0, opacity, bounds, mesh_key, params)

@@ -112,16 +112,29 @@ def seg_depth(e: ti.i32, seg: ti.template(), screen: ti.template()) -> f32:
 
 
 @ti.func
+def after(a: ti.i32, b: ti.i32, zb: f32, seg: ti.template(), screen: ti.template()) -> ti.i32:
+    """1 if segment a sorts after segment b (whose mid-depth is zb): deeper, or as deep and
+    later; else 0."""
+    za = seg_depth(a, seg, screen)
+    later = 0
+    if za > zb or (za == zb and a > b):
+        later = 1
+    return later
+
+
+@ti.func
 def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template(), seg: ti.template(),
              screen: ti.template()):
-    """Sort items[s0:s1] by segment mid-depth in place: Shell sort with Ciura's gaps."""
+    """Sort items[s0:s1] by segment mid-depth in place, ties by segment index (the scatter
+    that filled the bin ran in any thread order: a total order makes the result, and so the
+    frame, the same every time): Shell sort with Ciura's gaps."""
     for g in ti.static(_GAPS):
         if s1 - s0 > g:
             for k in range(s0 + g, s1):
                 e = items[k]
                 z = seg_depth(e, seg, screen)
                 j = k
-                while j - g >= s0 and seg_depth(items[j - g], seg, screen) > z:
+                while j - g >= s0 and after(items[j - g], e, z, seg, screen):
                     items[j] = items[j - g]
                     j -= g
                 items[j] = e
