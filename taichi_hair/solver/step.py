@@ -13,7 +13,6 @@ Head poses: `head[k]` ([K+1, 4] vec3: rows of R, then t) is the head before step
 after step k-1; a static head passes [prev, now] and uses now for every step after the first.
 """
 
-from contextlib import nullcontext
 import functools
 from dataclasses import asdict, dataclass
 
@@ -491,27 +490,25 @@ def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: in
                     bundles.state, bundles.drive(arrays_), bundles.contacts)
 
 
-# ---- the staged driver: one kernel per stage (benchmark breakdown; hair-hair interaction) -------
+# ---- the staged driver: stages in separate launches (per-stage timings; hair-hair interaction) --
 
 @ti.kernel
-def run_stage(stage: ti.template(), fl: ti.template(), h: float, t0: float, drag: float, max_speed: float,
-                    projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
-                    twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
-              md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
-    """One stage of a one-step launch for every strand; counters[s, BAD] = 0 where it failed.
-    One thread per strand."""
+def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: float, t0: float,
+               drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
+               twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float,
+               pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
+    """Stages first..last-1 of STAGES for one step of every strand; counters[s, BAD] is reset
+    by the launch that runs the first stage and set to 0 where a stage failed. One thread per
+    strand."""
     sc = StepScalars(h=h, t0=t0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
     for s in range(st.x.shape[0]):
-        if stage(s, 0, fl, sc, md, st, dr, co):
-            st.counters[s, BAD] = 0
-
-
-@ti.kernel
-def clear_bad(counters: Ints2):
-    for s in range(counters.shape[0]):
-        counters[s, BAD] = -1
+        if ti.static(first == 0):
+            st.counters[s, BAD] = -1
+        for stage in ti.static(_STAGE_FUNCS[first:last]):
+            if stage(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
 
 
 @ti.kernel
@@ -523,23 +520,32 @@ def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, roo
 
 def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: float, timers=None,
                interaction=None, pins=None) -> None:
-    """One step of h with one kernel per stage (head poses [prev, now] in control.head; pins as
-    in `advance`, for this one step).
-    `timers(name)` gives a context manager timing each stage (it must synchronise);
-    `interaction(model, state, control, h)` adds hair-hair forces and velocity smoothing after
-    the forces."""
-    stage_timer = timers if timers is not None else (lambda name: nullcontext())
+    """One step of h (head poses [prev, now] in control.head; pins as in `advance`, for this one
+    step), with `interaction(model, state, control, h)` adding hair-hair forces and velocity
+    smoothing after the forces: two launches around it. With `timers(name)` (a context manager
+    timing each stage; it must synchronise) every stage runs in a launch of its own."""
     arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
     flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None)
-    scalars = step_scalars(plan, control, h, fraction)
-    drive = bundles.drive(arrays_)
-    clear_bad(state.counters)
-    for name, stage in STAGES:
-        with stage_timer(name):
-            run_stage(stage, flags, *scalars, bundles.model, bundles.state, drive, bundles.contacts)
-        if name == "forces" and interaction is not None:
-            with stage_timer("hair-hair"):
+    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
+            bundles.drive(arrays_), bundles.contacts)
+    if timers is None:
+        run_stages(0, 1, *args)
+        if interaction is not None:
+            interaction(model, state, control, h)
+        run_stages(1, len(STAGES), *args)
+        return
+    for k, (name, _) in enumerate(STAGES):
+        with timers(name):
+            run_stages(k, k + 1, *args)
+        if k == 0 and interaction is not None:
+            with timers("hair-hair"):
                 interaction(model, state, control, h)
+
+
+@ti.kernel
+def clear_bad(counters: Ints2):
+    for s in range(counters.shape[0]):
+        counters[s, BAD] = -1
 
 
 def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) -> None:
@@ -547,8 +553,9 @@ def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) 
     contact solve."""
     flags = stage_flags(plan, contacts=True, pins=False)
     clear_bad(bundles.state.counters)
-    run_stage(stage_project, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
-              bundles.drive(), bundles.contacts)
+    k = STAGE_NAMES.index("projection")
+    run_stages(k, k + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
+               bundles.drive(), bundles.contacts)
 
 
 @ti.kernel
