@@ -251,7 +251,10 @@ def composite(seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
         c = vec3f(0.0, 0.0, 0.0)
         trans = f32(1.0)
         k = 0
-        while k < kbuf.shape[2] and kbuf[py, px, k] != empty_key():
+        # Taichi evaluates both sides of `and`: test the bound before reading the slot
+        while k < kbuf.shape[2]:
+            if kbuf[py, px, k] == empty_key():
+                break
             f = fragment(key_prim(kbuf[py, px, k]), px, py, seg, screen, width_px, rgba)
             c += trans * f[3] * vec3f(f[0], f[1], f[2])
             trans *= f32(1.0) - f[3]

@@ -134,7 +134,10 @@ def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template(), seg: ti.template(),
                 e = items[k]
                 z = seg_depth(e, seg, screen)
                 j = k
-                while j - g >= s0 and after(items[j - g], e, z, seg, screen):
+                # Taichi evaluates both sides of `and`: test the bound before reading items[j - g]
+                while j - g >= s0:
+                    if not after(items[j - g], e, z, seg, screen):
+                        break
                     items[j] = items[j - g]
                     j -= g
                 items[j] = e
