@@ -11,14 +11,13 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import imageio.v2 as imageio
 import numpy as np
 
 from .camera import Camera
 from .frame import RenderSettings, render_frame
-from .geometry import Hair, Mesh
+from .geometry import Hair
 from .shading import Lighting
 
 

@@ -4,8 +4,6 @@ conservation (white furnace), and Mitsuba 3's `hair` BSDF averaged over the fibr
 The Mitsuba comparisons skip where the optional `mitsuba` package is missing; `.ci/run`
 installs it."""
 
-import math
-
 import numpy as np
 import pytest
 

@@ -206,8 +206,8 @@ def test_head_pins_and_clips_follow_the_head():
     groom = hanging(11, length=0.2)
     sim = th.Simulator(groom, th.Material(), dt=1e-3, drag=5e-4)
     rest = sim.positions()[0]
-    pin = sim.add_pin(0, 6, attach="head")
-    clip = sim.add_pin(0, 3, clamp=True, attach="head")
+    sim.add_pin(0, 6, attach="head")
+    sim.add_pin(0, 3, clamp=True, attach="head")
     rotation, translation = rotation_matrix([0, 0, 1], 0.3), np.array([0.01, 0.0, 0.005])
     sim.set_root_transform(rotation, translation)
     sim.step(5)

@@ -84,9 +84,9 @@ class StepPlan:
 # drives it (DriveArgs: head poses, loads, wind tables, tools, user forces, pins), what it
 # collides with (ContactArgs), and the launch's scalars (StepScalars: passed as plain numbers,
 # since building a Taichi struct in Python costs about 0.2 ms, and gathered into the struct
-# inside the kernel, where it is free). A bundle is built once
-# per simulator (StepBundles): building one costs about what a launch does, passing a built
-# one costs the same as passing its arrays one by one (measured in docs/architecture.md).
+# inside the kernel, where it is free). A bundle is built once per simulator (StepBundles):
+# building one costs about what a launch does, passing a built one costs the same as passing
+# its arrays one by one (measured in docs/architecture.md).
 
 ModelArgs = ti.types.argpack(
     node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
