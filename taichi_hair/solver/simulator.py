@@ -20,7 +20,7 @@ from ..world.scene import _host_distance, check_common_inputs
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
-from .pins import ROOT_MODES, PinTable
+from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
@@ -91,8 +91,6 @@ class Simulator:
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction, gravity)
-        if root not in ROOT_MODES:
-            raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist

@@ -76,10 +76,15 @@ def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FA
 
 @dataclass(frozen=True)
 class StabilityBound:
-    """The explicit step's bound dt [s] and, in words naming the parameter, what sets it."""
+    """The explicit step's bound dt [s] and, in words naming the parameter, what sets it.
+    reason: the words, or a function giving them (worded only when a refusal needs them)."""
 
     dt: float
-    cause: str
+    reason: object
+
+    @property
+    def cause(self) -> str:
+        return self.reason() if callable(self.reason) else self.reason
 
     def tightened(self, dt: float, cause: str) -> "StabilityBound":
         """This bound, or (dt, cause) where that is tighter."""
@@ -91,22 +96,25 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
     the wind (air_speed [m/s], the fastest air), each grab spring (grabs: (name, stiffness
     [N/m], lightest free node's mass [kg])); its cause names the parameter that sets it. Drag is
-    named when it at least halves the bending bound."""
-    bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch)
+    named when it at least halves the bending bound. Only the bound itself is computed here;
+    the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
+    when a refusal words it."""
     with_drag = stable_time_step(groom, materials, drag, factor, kmoch=kmoch)
-    plain = stable_time_step(groom, materials, drag, factor) if kmoch else with_drag
-    if with_drag < 0.5 * bend:
-        candidates = [StabilityBound(with_drag, f"drag = {drag:g} N s/m per metre (the bending bound "
-                                                f"alone is {bend:.3g} s)")]
-    else:
+
+    def bending_cause() -> str:
+        bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch)
+        if with_drag < 0.5 * bend:
+            return f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)"
+        plain = stable_time_step(groom, materials, drag, factor) if kmoch else with_drag
         rule = (" (tightened for Kmoch's rule on elliptic curls: twist='quasistatic' has the plain "
                 f"bending bound {plain:.3g} s)" if with_drag < plain else "")
-        candidates = [StabilityBound(with_drag, "the material's bending stiffness (youngs_modulus, radius) "
-                                                "over the shortest segment and the sharpest rest turn of "
-                                                "the groom" + rule)]
-    candidates.append(StabilityBound(wind_bound(groom, air_speed, factor),
-                                     f"the wind (fastest air {air_speed:.3g} m/s must not move a node a "
-                                     f"segment per step)"))
+        return ("the material's bending stiffness (youngs_modulus, radius) over the shortest "
+                "segment and the sharpest rest turn of the groom" + rule)
+
+    candidates = [StabilityBound(with_drag, bending_cause),
+                  StabilityBound(wind_bound(groom, air_speed, factor),
+                                 f"the wind (fastest air {air_speed:.3g} m/s must not move a node a "
+                                 f"segment per step)")]
     # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k)
     candidates += [StabilityBound(2.0 * factor * math.sqrt(mass / k), f"{name}.stiffness = {k:g} N/m")
                    for name, k, mass in grabs]
