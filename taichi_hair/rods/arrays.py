@@ -26,6 +26,7 @@ Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+Mat3s3 = ti.types.ndarray(dtype=ti.math.mat3, ndim=3)  # [S, N, k]: k 3x3 blocks per node
 
 
 def scalars(shape, value=None):
@@ -49,6 +50,14 @@ def vectors(n, shape, value=None):
     a = ti.Vector.ndarray(n, float, shape)
     full = tuple(shape) + (n,)
     a.from_numpy(np.broadcast_to(np.asarray(0.0 if value is None else value, dtype=np_float()), full).copy())
+    return a
+
+
+def matrices(shape):
+    """A float ndarray of 3x3 matrices with index `shape`, zero."""
+    ensure_init()
+    a = ti.Matrix.ndarray(3, 3, float, shape)
+    a.fill(0.0)
     return a
 
 

@@ -61,3 +61,56 @@ def corner_signs(c):
     """d(factor)/d(fraction) per axis for corner c: +1 where c is 1, -1 where it is 0."""
     return ti.Vector([ti.select(c[0] == 1, 1.0, -1.0), ti.select(c[1] == 1, 1.0, -1.0),
                       ti.select(c[2] == 1, 1.0, -1.0)])
+
+
+
+@ti.func
+def positive_definite3(a):
+    """True if the symmetric 3x3 matrix a is positive definite (leading minors > 0; NaN fails)."""
+    minor2 = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    return (a[0, 0] > 0.0) & (minor2 > 0.0) & (a.determinant() > 0.0)
+
+
+@ti.func
+def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
+    """Solve strand s's symmetric positive definite block-pentadiagonal system A y = b in
+    place, O(n): for node rows i < n, blocks[s, i, 0] = A_ii, blocks[s, i, 1] = A_{i,i-1},
+    blocks[s, i, 2] = A_{i,i-2} (3x3 each), rhs[s, i] = b_i. A = L D L^T with unit block lower
+    L: blocks become (D_i^-1, L_{i,i-1}, L_{i,i-2}) and rhs the solution y. Returns 1 if a
+    pivot block was not positive definite (or NaN), else 0."""
+    failed = 0
+    for i in range(n):
+        a1 = blocks[s, i, 1]
+        a2 = blocks[s, i, 2]
+        d = blocks[s, i, 0]
+        l1 = ti.math.mat3(0.0)
+        l2 = ti.math.mat3(0.0)
+        if i >= 2:
+            l2 = a2 @ blocks[s, i - 2, 0]
+            a1 -= a2 @ blocks[s, i - 1, 1].transpose()  # L_{i,i-2} D_{i-2} = A_{i,i-2}
+            d -= l2 @ a2.transpose()
+        if i >= 1:
+            l1 = a1 @ blocks[s, i - 1, 0]
+            d -= l1 @ a1.transpose()
+        if not positive_definite3(d):
+            failed = 1
+            d = ti.math.mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        blocks[s, i, 0] = d.inverse()
+        blocks[s, i, 1] = l1
+        blocks[s, i, 2] = l2
+    for i in range(n):  # L z = b
+        z = rhs[s, i]
+        if i >= 1:
+            z -= blocks[s, i, 1] @ rhs[s, i - 1]
+        if i >= 2:
+            z -= blocks[s, i, 2] @ rhs[s, i - 2]
+        rhs[s, i] = z
+    for q in range(n):  # D L^T y = z, from the last node up
+        i = n - 1 - q
+        y = blocks[s, i, 0] @ rhs[s, i]
+        if i + 1 < n:
+            y -= blocks[s, i + 1, 1].transpose() @ rhs[s, i + 1]
+        if i + 2 < n:
+            y -= blocks[s, i + 2, 2].transpose() @ rhs[s, i + 2]
+        rhs[s, i] = y
+    return failed

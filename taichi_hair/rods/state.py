@@ -84,6 +84,13 @@ class RodState:
     strand_scalar: object  # [S] float
     counters: object  # [S, 8] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
+    # the implicit step's history and system (solver/implicit.py); [1, 1] placeholders when
+    # the integrator is explicit
+    v_prev: object = None  # [S, N] vec3: the velocities one step back [m/s]
+    dx_prev: object = None  # [S, N] vec3: the last step's displacements [m]
+    blocks: object = None  # [S, N, 3] mat3: the block-banded matrix (diagonal, 1st and 2nd
+    # sub-diagonal blocks of each node's row), then its factor
+    block_rhs: object = None  # [S, N] vec3: the right-hand side, then the solution
 
 
 def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
@@ -112,9 +119,10 @@ def perpendicular_unit(t: np.ndarray) -> np.ndarray:
     return u / np.linalg.norm(u, axis=1)[:, None]
 
 
-def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodState:
+def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implicit: bool = False) -> RodState:
     s_count, n_max = groom.n_strands, groom.max_nodes
     edges = (s_count, n_max - 1)
+    nodes = (s_count, n_max) if implicit else (1, 1)
     return RodState(
         x=arrays.vectors(3, (s_count, n_max), groom.positions),
         v=arrays.vectors(3, (s_count, n_max)),
@@ -130,6 +138,8 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray) -> RodS
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
+        v_prev=arrays.vectors(3, nodes), dx_prev=arrays.vectors(3, nodes),
+        blocks=arrays.matrices(nodes + (3,)), block_rhs=arrays.vectors(3, nodes),
     )
 
 
@@ -160,10 +170,11 @@ def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarra
     return theta
 
 
-def build(groom: Groom, material, clamp: bool = True) -> tuple[RodModel, RodState]:
+def build(groom: Groom, material, clamp: bool = True, implicit: bool = False) -> tuple[RodModel, RodState]:
     """Model and state for `groom` with `material` (one Material or one per strand), the state
     at the rest shape with rest material frames; clamp: node 0 bends against the root frame
-    (root="clamped"; False for a hinge or a rigid first edge).
+    (root="clamped"; False for a hinge or a rigid first edge); implicit: allocate the implicit
+    step's arrays.
     Rest curvatures and twists are measured on the rest shape with the same kernels the
     simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
@@ -172,7 +183,7 @@ def build(groom: Groom, material, clamp: bool = True) -> tuple[RodModel, RodStat
     root_t = groom.positions[:, 1] - groom.positions[:, 0]
     root_t /= np.linalg.norm(root_t, axis=1)[:, None]
     root_u = perpendicular_unit(root_t)
-    state = allocate_state(groom, root_t, root_u)
+    state = allocate_state(groom, root_t, root_u, implicit)
     node_count = arrays.ints((groom.n_strands,), groom.node_counts)
     update_frames(clamp, state.x, node_count, state.root_t, state.root_u, state.theta, state.bishop_u,
                   state.bishop_v, state.m1, state.m2, state.kb)

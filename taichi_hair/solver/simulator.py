@@ -26,7 +26,7 @@ from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   place_roots, project_once, strand_mechanical_energy)
+                   place_roots, project_once, seed_history, strand_mechanical_energy)
 
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
@@ -78,6 +78,10 @@ class Simulator:
         edge: a universal joint, not a ball joint), or "edge" (the first edge rides rigidly on
         the head and bending starts at node 1: the strand bends like one half an edge shorter,
         a first-order error; the model before the clamp moved to the root node, kept to compare).
+    integrator: "explicit" (default: symplectic Euler, substepped past the stability bound) or
+        "implicit" (linearised BDF2 with the bending stiffness solved per strand, docs/model.md
+        "The implicit step": stable at any dt, no substeps; the stability bound, substeps,
+        max_substeps and strict apply to the explicit integrator only).
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -87,7 +91,8 @@ class Simulator:
                  twist_tol: float | None = None, twist_iterations: int = 100, root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
-                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS):
+                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
+                 integrator: str = "explicit"):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction, gravity)
@@ -97,7 +102,9 @@ class Simulator:
         self.twist_iterations = twist_iterations
         twist_tol = None if twist_tol is None else _positive("twist_tol", twist_tol, "")
         self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
-                              twist_iterations=twist_iterations)
+                              twist_iterations=twist_iterations, integrator=integrator)
+        self.integrator = integrator
+        self._history_h = None  # the step the implicit history was last seeded or stepped with
         self.model, self.state = self.rods.model, self.rods.state
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
@@ -116,7 +123,7 @@ class Simulator:
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
                                  factor=stability_factor, kmoch=twist == "kmoch")
-        self.substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
+        self.substeps = self._substeps(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
             wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
@@ -125,7 +132,7 @@ class Simulator:
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
-            twist_iterations=twist_iterations, root=root)
+            twist_iterations=twist_iterations, root=root, integrator=integrator)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self.time = 0.0
@@ -231,7 +238,13 @@ class Simulator:
             stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
                              kmoch=self.twist == "kmoch"),
             "the shape the colliders left the groom in at the start (sharp bends)")
-        self.substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
+        self.substeps = self._substeps(strict)
+
+    def _substeps(self, strict) -> int:
+        """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
+        if self.integrator == "implicit":
+            return 1
+        return substeps_for(self.dt, self.bound, strict, self.max_substeps)
 
     @property
     def head_transform(self):
@@ -287,6 +300,10 @@ class Simulator:
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps
+        if self.integrator == "implicit" and self._history_h != h:
+            st = self.state
+            seed_history(h, self.model.node_count, st.v, st.v_prev, st.dx_prev)
+            self._history_h = h
         remaining = total = n * self.substeps
         staged = timers is not None or self.interaction is not None
         while remaining > 0:
@@ -355,6 +372,7 @@ class Simulator:
         step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
         for name, copy in self._snapshot.items():
             getattr(self.state, name).copy_from(copy)
+        self._history_h = None
         self.time, self.steps_taken, self._head = self._snapshot_clock
         self._head_prev = self._head
         self._orient_roots()
@@ -384,6 +402,7 @@ class Simulator:
     def load_state(self, path) -> None:
         """Restore a state written by `save_state` for this same groom; see checkpoint.load_state."""
         load_state(self, path)
+        self._history_h = None
 
     def set_user_forces(self, force) -> None:
         """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
@@ -412,7 +431,8 @@ class Simulator:
         counters = self.state.counters.to_numpy()
         residuals = self.state.residuals.to_numpy()
         report = {
-            "time": self.time, "steps": self.steps_taken, "dt": self.dt, "substeps": self.substeps,
+            "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
+            "substeps": self.substeps,
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
@@ -452,10 +472,12 @@ class Simulator:
     def set_positions(self, x) -> None:
         """Set node positions [S, N, 3] (metres) and recompute the frames (RodSystem.set_positions)."""
         self.rods.set_positions(x)
+        self._history_h = None
 
     def set_velocities(self, v) -> None:
         """Set node velocities [S, N, 3] in m/s."""
         self.rods.set_velocities(v)
+        self._history_h = None
 
     def material_angles(self) -> np.ndarray:
         """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""

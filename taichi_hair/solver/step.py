@@ -18,11 +18,12 @@ from dataclasses import asdict, dataclass
 
 import taichi as ti
 
-from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
+from ..rods.arrays import Ints1, Ints2, Mat3s3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
+from .implicit import strand_implicit_predict, strand_implicit_velocities
 from .pins import strand_carry_root_frame, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
 from ..rods.state import COUNTERS
@@ -30,6 +31,7 @@ from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, st
                     strand_twist_quasistatic)
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
+INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (implicit.py)
 # root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
 # pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
 # before the clamp moved to the root node, kept for comparison)
@@ -64,6 +66,7 @@ class StepPlan:
     twist_tol: float
     twist_iterations: int
     root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
+    integrator: str = "explicit"  # one of INTEGRATORS
 
     @property
     def pinned_root(self) -> bool:
@@ -94,7 +97,8 @@ ModelArgs = ti.types.argpack(
 StateArgs = ti.types.argpack(
     x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
-    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2)
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, v_prev=Vec3s2,
+    dx_prev=Vec3s2, blocks=Mat3s3, block_rhs=Vec3s2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
@@ -109,7 +113,8 @@ class StageFlags:
     """The compile-time switches of the step kernels (passed as ti.template, so each distinct
     value compiles its own kernel once per process): a stage whose flag is off is neither
     compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
-    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held."""
+    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held;
+    implicit: the implicit step (implicit.py) instead of symplectic Euler."""
 
     external: bool
     wind_field: bool
@@ -121,6 +126,7 @@ class StageFlags:
     touch: bool
     pins: bool
     root_mode: int
+    implicit: bool = False
 
 
 @functools.lru_cache(maxsize=256)
@@ -129,7 +135,8 @@ def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False
     """The flags of `plan` for one launch."""
     flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
-                 touch=plan.touch, pins=pins, root_mode=plan.root_mode)
+                 touch=plan.touch, pins=pins, root_mode=plan.root_mode,
+                 implicit=plan.integrator == "implicit")
     flags.update(overrides)
     return StageFlags(**flags)
 
@@ -148,7 +155,8 @@ class StepBundles:
         self.state = StateArgs(x=st.x, v=st.v, x_prev=st.x_prev, dx=st.dx, force=st.force, theta=st.theta,
                                bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
                                root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
-                               counters=st.counters, residuals=st.residuals)
+                               counters=st.counters, residuals=st.residuals, v_prev=st.v_prev,
+                               dx_prev=st.dx_prev, blocks=st.blocks, block_rhs=st.block_rhs)
         self._state, self._control, self.contacts = st, None, None
         self._drive_key, self._drive = None, None
 
@@ -402,15 +410,20 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
 @ti.func
 def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
                     co: ti.template()):
-    """Symplectic Euler; the root onto the head pose ending the step; pinned nodes
-    min(1, pin_f0 + (k + 1) pin_df) of the way to their targets."""
+    """Symplectic Euler, or the implicit step's predictor; the root onto the head pose ending
+    the step; pinned nodes min(1, pin_f0 + (k + 1) pin_df) of the way to their targets. Fails
+    if the implicit step's factorisation does."""
     now, _ = head_poses(k, fl)
-    strand_symplectic_euler(s, sc.h, md, st)
+    bad = 0
+    if ti.static(fl.implicit):
+        bad = strand_implicit_predict(s, sc.h, sc.drag, ti.static(fl.root_mode == 0), md, st)
+    else:
+        strand_symplectic_euler(s, sc.h, md, st)
     strand_place_root(s, dr.head, now, md.root_frame, st.x, st.root_t, st.root_u, fl.root_mode)
     if ti.static(fl.pins):
         strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
                           dr.pin_start, dr.pin_end, dr.head, now, st.x)
-    return 0
+    return bad
 
 
 @ti.func
@@ -430,7 +443,11 @@ def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.te
                        co: ti.template()):
     """Velocities (with the blow-up check), Bishop frames (a pinned root's reference carried in
     time), the twist update and the material frames."""
-    bad = strand_velocities(s, sc, md, st)
+    bad = 0
+    if ti.static(fl.implicit):
+        bad = strand_implicit_velocities(s, sc, md, st)
+    else:
+        bad = strand_velocities(s, sc, md, st)
     strand_frames(s, ti.static(fl.root_mode == 0), st.x, md.node_count, st.root_t, st.root_u, st.theta,
                   st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb)
     if ti.static(fl.root_mode == 1):
@@ -608,3 +625,13 @@ def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalar
                 p -= mass[s, i] * loads[0].dot(x[s, i])
         kinetic[s] = k
         potential[s] = p
+
+
+@ti.kernel
+def seed_history(h: float, node_count: Ints1, v: Vec3s2, v_prev: Vec3s2, dx_prev: Vec3s2):
+    """Start the implicit step's history as if each node had moved at its present velocity for
+    one step of h [s]: v_prev = v, dx_prev = h v (BDF2's first step is then second order)."""
+    for s, i in ti.ndrange(v.shape[0], v.shape[1]):
+        if i < node_count[s]:
+            v_prev[s, i] = v[s, i]
+            dx_prev[s, i] = h * v[s, i]

@@ -13,7 +13,7 @@ from .pins import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
-from .step import StepBundles, run_twist_update, total_elastic_forces
+from .step import INTEGRATORS, StepBundles, run_twist_update, total_elastic_forces
 from ..rods.twist import TWIST_MODES
 from ..validation import is_integer
 
@@ -23,11 +23,12 @@ class RodSystem:
 
     twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
-    float32; 100). root: "clamped", "pinned" or "edge" (see Simulator). Attributes: groom,
+    float32; 100). root: "clamped", "pinned" or "edge" (see Simulator). integrator: "explicit"
+    or "implicit" (allocates the implicit step's arrays, see Simulator). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
     def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
-                 twist_tol: float | None = None, twist_iterations: int = 100):
+                 twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit"):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
@@ -37,12 +38,15 @@ class RodSystem:
             raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
         if not (is_integer(twist_iterations) and twist_iterations >= 1):
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
-        self.groom, self.twist, self.root = groom, twist, root
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        self.groom, self.twist, self.root, self.integrator = groom, twist, root, integrator
         self.twist_iterations = int(twist_iterations)
         self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
         if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
             raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
-        self.model, self.state = build(groom, material, clamp=root == "clamped")
+        self.model, self.state = build(groom, material, clamp=root == "clamped",
+                                       implicit=integrator == "implicit")
         if root == "edge":  # the first edge rides on the head: node 1 is held too
             inv_mass = self.model.inv_mass.to_numpy()
             inv_mass[:, 1] = 0.0

@@ -1,0 +1,141 @@
+"""The implicit step (integrator="implicit"): linearised BDF2 on the nodes, one banded solve per
+strand, then the same fast projection, velocities from BDF2's difference formula
+(docs/model.md, "The implicit step").
+
+Per strand, with hh = 2h/3, the history x_{n-1} = x_n - dx_prev and v_{n-1} = v_prev:
+
+    (M + hh D + hh^2 K) v_{n+1} = M vhat + hh (f_n + D v_n - K dx_prev / 3),
+    vhat = (4 v_n - v_{n-1}) / 3,   x_{n+1} = xhat + hh v_{n+1},   xhat = x_n + dx_prev / 3,
+
+K the Gauss-Newton stiffness of the bending energy (sum over bending nodes of
+(dkb_i/dx)^T T_i (dkb_i/dx), T_i = sum_j (EI1 m2^j m2^j^T + EI2 m1^j m1^j^T) / (2 l_i)),
+D the air drag's diagonal. A bending stencil couples nodes i-1..i+1, so the matrix is
+block-pentadiagonal in 3x3 node blocks, symmetric positive definite (M > 0, K and D positive
+semi-definite), and factored by block LDL^T in O(n) per strand, one thread per strand.
+Held nodes (the root, pins) keep identity rows: the root placement and pins set them after.
+"""
+
+import taichi as ti
+
+from ..rods.arrays import vec3
+from ..rods.linalg import block_pentadiagonal_solve
+from ..rods.rod import edge_directors, first_node, node_edges
+
+mat3 = ti.math.mat3
+
+
+@ti.func
+def skew(a):
+    """The cross-product matrix: skew(a) b = a x b."""
+    return mat3([[0.0, -a.z, a.y], [a.z, 0.0, -a.x], [-a.y, a.x, 0.0]])
+
+
+@ti.func
+def kb_jacobians(e0, e1, kbi):
+    """(P, N) = (d kb_i / d x_{i-1}, d kb_i / d x_{i+1}) [1/m] for the edges e0 = x_i - x_{i-1},
+    e1 = x_{i+1} - x_i; d kb_i / d x_i = -(P + N). From kb = 2 e0 x e1 / (|e0||e1| + e0.e1)."""
+    l0 = e0.norm()
+    l1 = e1.norm()
+    denom = l0 * l1 + e0.dot(e1)
+    p = (2.0 * skew(e1) + kbi.outer_product(e1 + (l1 / l0) * e0)) / denom
+    q = (2.0 * skew(e0) - kbi.outer_product(e0 + (l0 / l1) * e1)) / denom
+    return p, q
+
+
+@ti.func
+def node_stencil(s, i, clamp: ti.template(), st: ti.template(), md: ti.template()):
+    """Node i's bending stencil: the Jacobians (G0, G1, G2) of kb_i with respect to x_{i-1},
+    x_i, x_{i+1} [1/m] and its curvature stiffness T_i [J] (E_i ~ 1/2 dkb^T T_i dkb). At a
+    clamped node 0 the previous edge is the clamp, which does not move: G0 = 0."""
+    e0, e1 = node_edges(s, i, st.x, st.root_t)
+    p, q = kb_jacobians(e0, e1, st.kb[s, i])
+    g0 = p
+    g1 = -(p + q)
+    if i == 0:
+        g0 = mat3(0.0)
+        g1 = -q
+    k = md.stiffness[s]
+    t = mat3(0.0)
+    for j in ti.static(range(2)):
+        d1, d2 = edge_directors(s, i - 1 + j, st.m1, st.m2, st.root_t, st.root_u)
+        t += k.x * d2.outer_product(d2) + k.y * d1.outer_product(d1)
+    return g0, g1, q, t * (0.5 / md.voronoi[s, i])
+
+
+@ti.func
+def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti.template()):
+    """blocks += scale K (free-free couplings only; blocks as in block_pentadiagonal_solve) and
+    st.dx += K dx_prev [N] on every node (held ones included: a moving root's last
+    displacement loads its neighbours)."""
+    n = md.node_count[s]
+    for i in range(ti.static(first_node(clamp)), n - 1):
+        g0, g1, g2, t = node_stencil(s, i, clamp, st, md)
+        prev = ti.max(i - 1, 0)  # the clamp's node -1 does not exist: its G0 is 0
+        y = t @ (g0 @ st.dx_prev[s, prev] + g1 @ st.dx_prev[s, i] + g2 @ st.dx_prev[s, i + 1])
+        st.dx[s, prev] += g0.transpose() @ y
+        st.dx[s, i] += g1.transpose() @ y
+        st.dx[s, i + 1] += g2.transpose() @ y
+        jac = (g0, g1, g2)
+        t_jac = (scale * t @ g0, scale * t @ g1, scale * t @ g2)
+        for a in ti.static(range(3)):
+            for b in ti.static(range(a + 1)):
+                na = i - 1 + a
+                nb = i - 1 + b
+                if nb >= 0:
+                    if md.inv_mass[s, na] > 0.0 and md.inv_mass[s, nb] > 0.0:
+                        st.blocks[s, na, a - b] += jac[a].transpose() @ t_jac[b]
+
+
+@ti.func
+def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(), st: ti.template()):
+    """The BDF2 predictor (module doc): solves for v_{n+1}, sets x_prev = x_n, v_prev = v_n,
+    dx = x_{n+1} - x_n and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
+    Returns 1 if the factorisation met a non-positive pivot (a non-finite state), else 0."""
+    n = md.node_count[s]
+    hh = 2.0 * h / 3.0
+    for i in range(n):
+        st.dx[s, i] = vec3(0.0)
+        for b in ti.static(range(3)):
+            st.blocks[s, i, b] = mat3(0.0)
+    assemble_stiffness(s, clamp, hh * hh, md, st)
+    for i in range(n):
+        rhs = vec3(0.0)
+        diagonal = 1.0
+        if md.inv_mass[s, i] > 0.0:
+            damping = drag * md.voronoi[s, i]
+            vhat = (4.0 * st.v[s, i] - st.v_prev[s, i]) / 3.0
+            rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + damping * st.v[s, i] - st.dx[s, i] / 3.0)
+            diagonal = md.mass[s, i] + hh * damping
+        st.blocks[s, i, 0] += diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        st.block_rhs[s, i] = rhs
+    failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
+    for i in range(n):
+        st.x_prev[s, i] = st.x[s, i]
+        st.v_prev[s, i] = st.v[s, i]
+        st.dx[s, i] = vec3(0.0)
+        if md.inv_mass[s, i] > 0.0:
+            v_next = st.block_rhs[s, i]
+            st.v[s, i] = v_next
+            st.dx[s, i] = st.dx_prev[s, i] / 3.0 + hh * v_next
+            st.x[s, i] += st.dx[s, i]
+    return failed
+
+
+@ti.func
+def strand_implicit_velocities(s, sc, md: ti.template(), st: ti.template()):
+    """v_{n+1} = (3 (x_{n+1} - x_n) - (x_n - x_{n-1})) / 2h, BDF2's velocity of the projected
+    positions, from the displacements (dx on free nodes, x - x_prev on held ones: see
+    step.strand_velocities on why not from x); dx_prev takes this step's displacement. Returns 1
+    if a node is non-finite or faster than max_speed, else 0."""
+    bad = 0
+    inv_2h = 0.5 / sc.h
+    for i in range(md.node_count[s]):
+        disp = st.dx[s, i]
+        if md.inv_mass[s, i] == 0.0:
+            disp = st.x[s, i] - st.x_prev[s, i]
+        vel = (3.0 * disp - st.dx_prev[s, i]) * inv_2h
+        st.dx_prev[s, i] = disp
+        st.v[s, i] = vel
+        if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):
+            bad = 1
+    return bad
