@@ -26,7 +26,7 @@ Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
-Mat3s3 = ti.types.ndarray(dtype=ti.math.mat3, ndim=3)  # [S, N, k]: k 3x3 blocks per node
+Mat4s3 = ti.types.ndarray(dtype=ti.math.mat4, ndim=3)  # [S, N, k]: k 4x4 blocks per node
 
 
 def scalars(shape, value=None):
@@ -53,10 +53,10 @@ def vectors(n, shape, value=None):
     return a
 
 
-def matrices(shape):
-    """A float ndarray of 3x3 matrices with index `shape`, zero."""
+def matrices(n, shape):
+    """A float ndarray of n x n matrices with index `shape`, zero."""
     ensure_init()
-    a = ti.Matrix.ndarray(3, 3, float, shape)
+    a = ti.Matrix.ndarray(n, n, float, shape)
     a.fill(0.0)
     return a
 

@@ -1,27 +1,34 @@
-"""The implicit step (integrator="implicit"): linearised BDF2 on the nodes, one banded solve per
-strand, then the same fast projection, velocities from BDF2's difference formula
+"""The implicit step (integrator="implicit"): linearised BDF2 on the nodes with the edge
+lengths as constraints inside the solve, one block-banded solve per strand, then the same fast
+projection for what the linearisation left; velocities from BDF2's difference formula
 (docs/model.md, "The implicit step").
 
 Per strand, with hh = 2h/3, the history x_{n-1} = x_n - dx_prev and v_{n-1} = v_prev:
 
-    (M + hh D + hh^2 K) v_{n+1} = M vhat + hh (f_n + D v_n - K dx_prev / 3),
+    [ M + hh D + hh^2 K   G^T ] [ v_{n+1} ]   [ M vhat + hh (f_n + D v_n - K dx_prev / 3) ]
+    [ G                   0   ] [ lambda  ] = [ -(|e| - l + G dx_prev / 3) / hh            ]
+
     vhat = (4 v_n - v_{n-1}) / 3,   x_{n+1} = xhat + hh v_{n+1},   xhat = x_n + dx_prev / 3,
 
 K the Gauss-Newton stiffness of the bending energy (sum over bending nodes of
 (dkb_i/dx)^T T_i (dkb_i/dx), T_i = sum_j (EI1 m2^j m2^j^T + EI2 m1^j m1^j^T) / (2 l_i)),
-D the air drag's diagonal. A bending stencil couples nodes i-1..i+1, so the matrix is
-block-pentadiagonal in 3x3 node blocks, symmetric positive definite (M > 0, K and D positive
-semi-definite), and factored by block LDL^T in O(n) per strand, one thread per strand.
-Held nodes (the root, pins) keep identity rows: the root placement and pins set them after.
+D the air drag's diagonal, G the edges' unit tangents (t . (v_i - v_{i-1}) per edge), lambda
+the edges' impulses. A bending stencil couples nodes i-1..i+1: with each edge's multiplier
+stored with its far node the matrix is block-pentadiagonal in 4x4 node blocks, symmetric and
+indefinite, and factored by block LDL^T without pivoting in O(n) per strand (one thread per
+strand). Held nodes (the root, pins) keep identity rows: the root placement and pins set them
+after.
 """
 
 import taichi as ti
 
-from ..rods.arrays import vec3
+from ..rods.arrays import vec3, vec4
 from ..rods.linalg import block_pentadiagonal_solve
 from ..rods.rod import edge_directors, first_node, node_edges
 
 mat3 = ti.math.mat3
+mat4 = ti.math.mat4
+HELD_DAMPING = 1e-6  # as the projection's (step.py)
 
 
 @ti.func
@@ -83,20 +90,65 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
                 nb = i - 1 + b
                 if nb >= 0:
                     if md.inv_mass[s, na] > 0.0 and md.inv_mass[s, nb] > 0.0:
-                        st.blocks[s, na, a - b] += jac[a].transpose() @ t_jac[b]
+                        st.blocks[s, na, a - b] += embed(jac[a].transpose() @ t_jac[b])
+
+
+@ti.func
+def embed(m):
+    """The 3x3 matrix m as the upper-left block of a 4x4 one (the node's velocity rows)."""
+    return mat4([[m[0, 0], m[0, 1], m[0, 2], 0.0], [m[1, 0], m[1, 1], m[1, 2], 0.0],
+                 [m[2, 0], m[2, 1], m[2, 2], 0.0], [0.0, 0.0, 0.0, 0.0]])
+
+
+@ti.func
+def velocity_row(t, value):
+    """A 4x4 block whose only nonzero row is the last: (t, value) (a constraint's row)."""
+    return mat4([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0],
+                 [t.x, t.y, t.z, value]])
+
+
+@ti.func
+def assemble_constraints(s, n, hh, md: ti.template(), st: ti.template()):
+    """The length rows: node i's fourth unknown is the multiplier of edge i-1 (so the leading
+    blocks stay invertible with a held root), its row t . (v_i - v_{i-1}) hh = -(|e| - l) -
+    t . (dx_prev_i - dx_prev_{i-1}) / 3, t the edge's unit tangent (held nodes' velocities
+    are not unknowns; an edge held at both ends gets an identity row)."""
+    for i in range(1, n):
+        e = st.x[s, i] - st.x[s, i - 1]
+        length = e.norm()
+        t = e / length
+        w_prev = md.inv_mass[s, i - 1]
+        w_next = md.inv_mass[s, i]
+        rhs = st.block_rhs[s, i]
+        if w_prev + w_next > 0.0:
+            gap = length - md.rest_length[s, i - 1] + t.dot(st.dx_prev[s, i] - st.dx_prev[s, i - 1]) / 3.0
+            rhs[3] = -gap / hh
+            # a taut stretch held at both ends (pins) is singular: damped as the projection is
+            d = velocity_row(vec3(0.0), -HELD_DAMPING * (w_prev + w_next))
+            if w_next > 0.0:
+                d += velocity_row(t, 0.0)
+                d += velocity_row(t, 0.0).transpose()
+            st.blocks[s, i, 0] += d
+            if w_prev > 0.0:
+                st.blocks[s, i, 1] += velocity_row(-t, 0.0)
+        else:
+            st.blocks[s, i, 0] += velocity_row(vec3(0.0), 1.0)
+        st.block_rhs[s, i] = rhs
+    st.blocks[s, 0, 0] += velocity_row(vec3(0.0), 1.0)  # node 0 has no edge before it
 
 
 @ti.func
 def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(), st: ti.template()):
-    """The BDF2 predictor (module doc): solves for v_{n+1}, sets x_prev = x_n, v_prev = v_n,
-    dx = x_{n+1} - x_n and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
-    Returns 1 if the factorisation met a non-positive pivot (a non-finite state), else 0."""
+    """The BDF2 predictor (module doc): solves for v_{n+1} with the edge lengths linearised
+    inside the solve, sets x_prev = x_n, v_prev = v_n, dx = x_{n+1} - x_n and x = x_{n+1} on
+    free nodes (held nodes: dx = 0, placed after). Returns 1 if the factorisation met a
+    singular pivot (a non-finite state), else 0."""
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
     for i in range(n):
         st.dx[s, i] = vec3(0.0)
         for b in ti.static(range(3)):
-            st.blocks[s, i, b] = mat3(0.0)
+            st.blocks[s, i, b] = mat4(0.0)
     assemble_stiffness(s, clamp, hh * hh, md, st)
     for i in range(n):
         rhs = vec3(0.0)
@@ -106,15 +158,16 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
             vhat = (4.0 * st.v[s, i] - st.v_prev[s, i]) / 3.0
             rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + damping * st.v[s, i] - st.dx[s, i] / 3.0)
             diagonal = md.mass[s, i] + hh * damping
-        st.blocks[s, i, 0] += diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-        st.block_rhs[s, i] = rhs
+        st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        st.block_rhs[s, i] = vec4(rhs.x, rhs.y, rhs.z, 0.0)
+    assemble_constraints(s, n, hh, md, st)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
     for i in range(n):
         st.x_prev[s, i] = st.x[s, i]
         st.v_prev[s, i] = st.v[s, i]
         st.dx[s, i] = vec3(0.0)
         if md.inv_mass[s, i] > 0.0:
-            v_next = st.block_rhs[s, i]
+            v_next = st.block_rhs[s, i].xyz
             st.v[s, i] = v_next
             st.dx[s, i] = st.dx_prev[s, i] / 3.0 + hh * v_next
             st.x[s, i] += st.dx[s, i]

@@ -510,6 +510,10 @@ class Simulator:
         """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces)."""
         return self.rods.elastic_forces()
 
+    def bending_stiffness(self) -> np.ndarray:
+        """The implicit step's stiffness matrix [S, 3N, 3N] in N/m (RodSystem.bending_stiffness)."""
+        return self.rods.bending_stiffness()
+
     def theta_gradient(self) -> np.ndarray:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
         return self.rods.theta_gradient()

@@ -13,7 +13,7 @@ from .pins import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
-from .step import INTEGRATORS, StepBundles, run_twist_update, total_elastic_forces
+from .step import INTEGRATORS, StepBundles, bending_stiffness_blocks, run_twist_update, total_elastic_forces
 from ..rods.twist import TWIST_MODES
 from ..validation import is_integer
 
@@ -166,6 +166,25 @@ class RodSystem:
         probes the force's dependence on them this way, leaving the model as it is)."""
         total_elastic_forces(self.model, self.state, self.twist, rest_kappa)
         return self.state.force.to_numpy().astype(np.float64)
+
+    def bending_stiffness(self) -> np.ndarray:
+        """The implicit step's stiffness matrix K [S, 3N, 3N] in N/m at the current frames: the
+        Gauss-Newton Hessian of the bending energy over the free nodes (held rows and columns
+        zero; docs/model.md, "The implicit step"). Needs integrator="implicit"."""
+        if self.integrator != "implicit":
+            raise ValueError('bending_stiffness needs a RodSystem built with integrator="implicit"')
+        bending_stiffness_blocks(self.model.clamp, self.bundles.model, self.bundles.state)
+        blocks = self.state.blocks.to_numpy().astype(np.float64)[..., :3, :3]
+        s_count, n_max = blocks.shape[:2]
+        dense = np.zeros((s_count, 3 * n_max, 3 * n_max))
+        for i in range(n_max):
+            for k in range(3):
+                j = i - k
+                if j >= 0:
+                    dense[:, 3 * i:3 * i + 3, 3 * j:3 * j + 3] = blocks[:, i, k]
+                    if k:
+                        dense[:, 3 * j:3 * j + 3, 3 * i:3 * i + 3] = np.swapaxes(blocks[:, i, k], 1, 2)
+        return dense
 
     def theta_gradient(self) -> np.ndarray:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""

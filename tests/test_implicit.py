@@ -1,0 +1,229 @@
+"""The implicit step (integrator="implicit"): its stiffness against central differences, its
+block solver against a dense solve, and its dynamics against the explicit step's references:
+the elastica cantilever, the hanging-chain pendulum's swing, a stiff case past the explicit
+bound, and tight elliptic curls on a shaking head."""
+
+import warnings
+
+import numpy as np
+import pytest
+import taichi as ti
+
+import taichi_hair as th
+from taichi_hair.rods import arrays
+from taichi_hair.rods.linalg import block_pentadiagonal_solve
+from taichi_hair.solver.system import RodSystem
+from references import cantilever_elastica_tip, cantilever_first_frequency
+from test_pins import crossing_times, pendulum
+from test_step import BEAM, LENGTH, clamped_beam
+
+CURLY = dict(length=0.05, n_nodes=12, curl_radius=0.004, curl_pitch=0.01)
+
+
+def force_jacobian(rods, x0, nodes, h=1e-7):
+    """-d force / d x [3 len(nodes), 3 len(nodes)] of strand 0 by central differences (float64),
+    material angles held (as the forces hold them)."""
+    columns = []
+    for i in nodes:
+        for k in range(3):
+            forces = []
+            for sign in (1.0, -1.0):
+                x = x0.copy()
+                x[0, i, k] += sign * h
+                rods.set_positions(x)
+                forces.append(rods.elastic_forces()[0, nodes].ravel())
+            columns.append(-(forces[0] - forces[1]) / (2 * h))
+    rods.set_positions(x0)
+    return np.array(columns).T
+
+
+@pytest.mark.parametrize("ellipticity", [1.0, 4.0])
+def test_stiffness_is_the_force_jacobian_at_straight_rest(ellipticity):
+    rods = RodSystem(th.Groom.straight(length=0.05, n_nodes=8), th.Material(ellipticity=ellipticity),
+                     integrator="implicit")
+    free = list(range(1, 8))
+    reference = force_jacobian(rods, rods.positions(), free)
+    stiffness = rods.bending_stiffness()[0][3:, 3:]
+    error = np.abs(stiffness - reference).max() / np.abs(reference).max()
+    print(f"\nstraight rest, ellipticity {ellipticity}: |K - (-df/dx)| / |df/dx| = {error:.2e}")
+    assert error < 1e-6
+
+
+def curvature_quadratic_form(rods, x0, direction, h=1e-7):
+    """sum_i dkb_i^T T_i dkb_i for a move `direction` [S, N, 3], dkb_i from central differences
+    of the curvature binormals and T_i = sum_j (EI1 m2^j m2^j^T + EI2 m1^j m1^j^T) / (2 l_i)
+    from the material frames (the clamp frame at node 0)."""
+    kbs = []
+    for sign in (1.0, -1.0):
+        rods.set_positions(x0 + sign * h * direction)
+        kbs.append(rods.frames()["kb"][0])
+    rods.set_positions(x0)
+    dkb = (kbs[0] - kbs[1]) / (2 * h)
+    f = rods.frames()
+    ei1, ei2 = rods.model.stiffness.to_numpy()[0, :2]
+    voronoi = rods.model.voronoi.to_numpy()[0]
+    root_t, root_u = rods.state.root_t.to_numpy()[0], rods.state.root_u.to_numpy()[0]
+    total = 0.0
+    for i in range(0, rods.groom.node_counts[0] - 1):
+        t = np.zeros((3, 3))
+        for j in (i - 1, i):
+            d1, d2 = (root_u, np.cross(root_t, root_u)) if j < 0 else (f["m1"][0, j], f["m2"][0, j])
+            t += ei1 * np.outer(d2, d2) + ei2 * np.outer(d1, d1)
+        total += dkb[i] @ (t / (2 * voronoi[i])) @ dkb[i]
+    return total
+
+
+def test_stiffness_is_the_curvature_jacobians_gram_on_tight_elliptic_curls():
+    """Away from straight rest K is the Gauss-Newton part only: dkb^T T dkb for every move."""
+    rods = RodSystem(th.Groom.curly(**CURLY), th.Material(ellipticity=4.0), integrator="implicit")
+    rng = np.random.default_rng(1)
+    x0 = rods.positions() + 2e-4 * rng.standard_normal(rods.positions().shape)
+    x0[:, 0] = rods.positions()[:, 0]
+    rods.set_positions(x0)
+    stiffness = rods.bending_stiffness()[0]
+    for seed in range(3):
+        direction = np.random.default_rng(seed).standard_normal(x0.shape)
+        direction[:, 0] = 0.0  # the root is held
+        expected = curvature_quadratic_form(rods, x0, direction)
+        got = direction[0].ravel() @ stiffness @ direction[0].ravel()
+        assert abs(got - expected) < 1e-6 * expected
+    # and it is positive semi-definite, as the solver needs
+    assert np.linalg.eigvalsh(stiffness).min() > -1e-9 * np.abs(stiffness).max()
+
+
+@ti.kernel
+def _solve(blocks: arrays.Mat4s3, rhs: arrays.Vec4s2, n: int, failed: arrays.Ints1):
+    for s in range(1):
+        failed[s] = block_pentadiagonal_solve(s, n, blocks, rhs)
+
+
+def block_system(matrix, n):
+    blocks = np.zeros((1, n, 3, 4, 4))
+    for i in range(n):
+        for k in range(3):
+            if i - k >= 0:
+                blocks[0, i, k] = matrix[4 * i:4 * i + 4, 4 * (i - k):4 * (i - k) + 4]
+    out = arrays.matrices(4, (1, n, 3))
+    out.from_numpy(blocks.astype(arrays.np_float()))
+    return out
+
+
+def test_block_solver_matches_a_dense_solve_and_refuses_a_singular_matrix():
+    """An indefinite saddle-point-like system: SPD velocity blocks, zero multiplier diagonals."""
+    n = 9
+    rng = np.random.default_rng(0)
+    matrix = np.zeros((4 * n, 4 * n))
+    for i in range(n):
+        for j in range(max(0, i - 2), i + 1):
+            matrix[4 * i:4 * i + 4, 4 * j:4 * j + 4] = rng.standard_normal((4, 4))
+    matrix = matrix + matrix.T
+    for i in range(n):
+        matrix[4 * i:4 * i + 3, 4 * i:4 * i + 3] += 30 * np.eye(3)
+        matrix[4 * i + 3, 4 * i + 3] = 0.0
+    b = rng.standard_normal(4 * n)
+    rhs = arrays.vectors(4, (1, n), b.reshape(1, n, 4))
+    failed = arrays.ints((1,), 0)
+    _solve(block_system(matrix, n), rhs, n, failed)
+    tol = 1e-10 if arrays.np_float() == np.float64 else 1e-4
+    expected = np.linalg.solve(matrix, b)
+    assert failed.to_numpy()[0] == 0
+    assert np.abs(rhs.to_numpy().ravel() - expected).max() < tol * np.abs(expected).max()
+    matrix[:4, :] = 0.0
+    matrix[:, :4] = 0.0
+    _solve(block_system(matrix, n), rhs, n, failed)
+    assert failed.to_numpy()[0] == 1
+
+
+def test_implicit_cantilever_settles_on_the_elastica_at_large_steps():
+    material = th.Material(**BEAM)
+    ei, rho_a = material.bending_stiffness[0], material.linear_density
+    omega1 = 2 * np.pi * cantilever_first_frequency(LENGTH, ei, rho_a)
+    reference = cantilever_elastica_tip(LENGTH, rho_a * 9.81, ei)
+    errors = {}
+    for dt in (1e-3, 1e-2):
+        sim = th.Simulator(clamped_beam(50), material, dt=dt, drag=2 * rho_a * omega1, twist="none",
+                           integrator="implicit")
+        assert sim.substeps == 1
+        sim.run(8.0, progress=False)
+        assert sim.kinetic_energy() < 1e-8 * sim.elastic_energy(), "not at rest yet"
+        errors[dt] = np.linalg.norm(sim.positions()[0, -1][[0, 2]] - reference) / LENGTH
+    print("\nimplicit cantilever tip error / L:", {dt: f"{e:.2e}" for dt, e in errors.items()})
+    assert max(errors.values()) < 0.001  # the explicit step's bound at 50 segments (test_step)
+
+
+def test_implicit_pendulum_keeps_its_swing_and_period():
+    sim, period = pendulum(integrator="implicit")
+    times, tip = [], []
+    while sim.time < 6 * period:
+        sim.step(2)
+        times.append(sim.time)
+        tip.append(sim.positions()[0, -1, 0])
+    times, tip = np.array(times), np.array(tip)
+    crossings = crossing_times(times, tip)
+    measured = np.mean(np.diff(crossings))
+    first, last = np.abs(tip[times < period]).max(), np.abs(tip[times > 5 * period]).max()
+    change = last / first - 1
+    print(f"\nimplicit pendulum: period {measured:.5f} s (chain {period:.5f} s), amplitude change over "
+          f"5 periods {change:.2e}")
+    assert abs(measured / period - 1) < 0.01
+    assert abs(change) < 5e-3
+
+
+def test_stiff_strand_runs_one_step_past_the_explicit_bound():
+    groom = th.Groom.straight(length=0.04, n_nodes=21)  # 2 mm segments
+    material = th.Material(youngs_modulus=1e10, radius=1e-4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        explicit = th.Simulator(groom, material, dt=2e-3)
+    implicit = th.Simulator(groom, material, dt=2e-3, integrator="implicit")
+    assert explicit.substeps > 50 and implicit.substeps == 1
+    energies = []
+    for _ in range(50):
+        implicit.step(1)
+        energies.append(implicit.total_energy())
+    x = implicit.positions()[0]
+    strain = np.abs(np.linalg.norm(np.diff(x, axis=0), axis=1) / 0.002 - 1).max()
+    assert np.all(np.isfinite(x)) and strain < 1e-4
+    # no damping but the step's own: the energy never rises above its start
+    assert max(energies) <= energies[0] + 1e-9 * abs(energies[0])
+
+
+def test_tight_elliptic_curls_on_a_shaking_head_stay_out_of_it():
+    radius = 0.1
+    roots = radius * np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [-0.6, 0.0, 0.8]])
+    groom = th.Groom.curly(roots, roots / radius, length=0.12, n_nodes=40, curl_radius=0.004,
+                           curl_pitch=0.008)
+
+    def shake(t):
+        return rotation_about_z(0.6 * np.sin(2 * np.pi * 3.0 * t)), np.zeros(3)
+
+    sim = th.Simulator(groom, th.Material(ellipticity=4.0), dt=1e-3, drag=5e-4, root_motion=shake,
+                       colliders=[th.Sphere(radius=radius, margin=1e-3)],
+                       integrator="implicit")
+    assert sim.substeps == 1
+    deepest = np.inf
+    for _ in range(20):
+        sim.step(10)
+        x = sim.positions()
+        deepest = min(deepest, (np.linalg.norm(x[:, 1:], axis=2) - radius).min())
+    edges = np.linalg.norm(np.diff(sim.positions(), axis=1), axis=2)
+    rest = sim.model.rest_length.to_numpy()
+    strain = np.abs(edges / rest - 1).max()
+    print(f"\nshaking curls: deepest node {deepest * 1e3:.3f} mm outside the head, strain {strain:.1e}")
+    assert deepest > -1e-4 and strain < 1e-4
+
+
+def rotation_about_z(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_integrator_is_checked_and_the_implicit_stage_compiles_only_when_chosen():
+    with pytest.raises(ValueError, match="integrator must be one of"):
+        th.Simulator(th.Groom.straight(), th.Material(), integrator="rk4")
+    from taichi_hair.solver.step import compiled_variants
+    sim = th.Simulator(th.Groom.straight(n_nodes=8), th.Material())
+    sim.step(2)
+    assert any(not v["implicit"] for v in compiled_variants())
+    with pytest.raises(ValueError, match="integrator"):
+        sim.rods.bending_stiffness()
