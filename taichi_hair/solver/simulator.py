@@ -95,7 +95,7 @@ class Simulator:
                  integrator: str = "explicit"):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                         wind, colliders, touch, hair_interaction, gravity)
+                         wind, colliders, touch, hair_interaction, gravity, integrator)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
@@ -378,7 +378,8 @@ class Simulator:
         self._orient_roots()
         self.update_frames()
         residual = float(self.state.residuals.to_numpy()[first, 0])
-        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual)
+        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual,
+                             implicit=self.integrator == "implicit")
         twist_residual = float(self.state.residuals.to_numpy()[first, 1])
         # the kernel's rule (step.strand_twist): a cap, or a stall above TWIST_FAILED_ABOVE
         if counters[first, COUNTERS["twist_cap_hits"]] or (
@@ -572,9 +573,10 @@ def _check_max_substeps(value) -> int:
 
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                     wind, colliders, touch, hair_interaction, gravity):
+                     wind, colliders, touch, hair_interaction, gravity, integrator):
     check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
-                        touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag)
+                        touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag,
+                        integrator=integrator)
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
         if not (is_integer(value) and value >= 1):

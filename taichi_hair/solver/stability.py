@@ -141,13 +141,18 @@ def substeps_for(dt: float, bound: StabilityBound, strict: bool, max_substeps: i
 
 
 def likely_cause(dt_used: float, bound: float, cap_hits: int, max_speed: float,
-                 residual: float = 0.0) -> str:
-    """A sentence naming the most likely reason a run diverged."""
+                 residual: float = 0.0, implicit: bool = False) -> str:
+    """A sentence naming the most likely reason a run diverged (implicit: the implicit step,
+    which has no stability bound, ran)."""
     if residual > 1e-2:
         return (f"the inextensibility projection could not hold the edges (relative residual "
                 f"{residual:.3g}): forces or motion too strong for a {dt_used:.3g} s step (gale wind, "
                 f"violent head motion, large user force); lower dt")
-    if dt_used > bound:
+    if implicit and residual <= 1e-2 and not cap_hits:
+        return (f"the implicit step's linearisation at dt = {dt_used:.3g} s (one solve per step) "
+                f"left a node non-finite or faster than max_speed = {max_speed:g} m/s: an extreme "
+                f"load or motion for this step; lower dt or add drag")
+    if dt_used > bound and not implicit:
         return (f"the time step {dt_used:.3g} s exceeds the stability bound {bound:.3g} s "
                 f"(strict=False substeps automatically; was the bound overridden?)")
     if cap_hits:

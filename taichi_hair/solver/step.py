@@ -31,7 +31,6 @@ from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, st
                     strand_twist_quasistatic)
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
-INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (implicit.py)
 # root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
 # pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
 # before the clamp moved to the root node, kept for comparison)
@@ -66,7 +65,7 @@ class StepPlan:
     twist_tol: float
     twist_iterations: int
     root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
-    integrator: str = "explicit"  # one of INTEGRATORS
+    integrator: str = "explicit"  # one of world.scene.INTEGRATORS
 
     @property
     def pinned_root(self) -> bool:

@@ -13,7 +13,8 @@ from .pins import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
-from .step import INTEGRATORS, StepBundles, bending_stiffness_blocks, run_twist_update, total_elastic_forces
+from .step import StepBundles, bending_stiffness_blocks, run_twist_update, total_elastic_forces
+from ..world.scene import INTEGRATORS
 from ..rods.twist import TWIST_MODES
 from ..validation import is_integer
 

@@ -108,6 +108,9 @@ def _host_distance(c, p):
     return (p - a) @ b
 
 
+INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (solver/implicit.py)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Scene:
     """Everything a simulation needs, as data.
@@ -116,7 +119,8 @@ class Scene:
     motion: callable t -> (R, t) moving the head (taichi_hair.world.motion has nod, shake, turntable,
     jerk and keyframes) or None; wind: a Wind, a 3-vector [m/s] or None; touch: Hand and Grab
     tools; hair_interaction: a HairInteraction or None; gravity [m/s^2]; drag [N s/m per metre
-    of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode."""
+    of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
+    integrator: "explicit" (default) or "implicit" (see Simulator)."""
 
     groom: Groom
     material: object = field(default_factory=Material)
@@ -128,11 +132,13 @@ class Scene:
     gravity: tuple = (0.0, 0.0, -9.81)
     drag: float = 5e-4
     twist: str = "quasistatic"
+    integrator: str = "explicit"
 
     def __post_init__(self):
         check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
-                            hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag)
+                            hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
+                            integrator=self.integrator)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
@@ -143,12 +149,16 @@ class Scene:
                 "wind": (0.0, 0.0, 0.0) if self.wind is None else self.wind,
                 "root_motion": self.motion, "touch": tuple(self.touch),
                 "colliders": () if self.head is None else self.head.colliders,
-                "hair_interaction": self.hair_interaction, "twist": self.twist}
+                "hair_interaction": self.hair_interaction, "twist": self.twist,
+                "integrator": self.integrator}
 
 
-def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag):
+def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
+                        integrator="explicit"):
     """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
     parameter and what it allows. motion_name: what the caller calls the head motion."""
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
     if not isinstance(groom, Groom):
         raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
     if twist not in TWIST_MODES:
