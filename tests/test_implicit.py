@@ -92,7 +92,7 @@ def test_stiffness_is_the_curvature_jacobians_gram_on_tight_elliptic_curls():
 
 
 @ti.kernel
-def _solve(blocks: arrays.Mat4s3, rhs: arrays.Vec4s2, n: int, failed: arrays.Ints1):
+def _solve(blocks: arrays.Mat4d3, rhs: arrays.Vec4d2, n: int, failed: arrays.Ints1):
     for s in range(1):
         failed[s] = block_pentadiagonal_solve(s, n, blocks, rhs)
 
@@ -103,8 +103,8 @@ def block_system(matrix, n):
         for k in range(3):
             if i - k >= 0:
                 blocks[0, i, k] = matrix[4 * i:4 * i + 4, 4 * (i - k):4 * (i - k) + 4]
-    out = arrays.matrices(4, (1, n, 3))
-    out.from_numpy(blocks.astype(arrays.np_float()))
+    out = arrays.matrices(4, (1, n, 3), ti.f64)
+    out.from_numpy(blocks)
     return out
 
 
@@ -121,10 +121,10 @@ def test_block_solver_matches_a_dense_solve_and_refuses_a_singular_matrix():
         matrix[4 * i:4 * i + 3, 4 * i:4 * i + 3] += 30 * np.eye(3)
         matrix[4 * i + 3, 4 * i + 3] = 0.0
     b = rng.standard_normal(4 * n)
-    rhs = arrays.vectors(4, (1, n), b.reshape(1, n, 4))
+    rhs = arrays.vectors(4, (1, n), b.reshape(1, n, 4), dtype=ti.f64)
     failed = arrays.ints((1,), 0)
     _solve(block_system(matrix, n), rhs, n, failed)
-    tol = 1e-10 if arrays.np_float() == np.float64 else 1e-4
+    tol = 1e-10  # the solver works in float64 in both precisions
     expected = np.linalg.solve(matrix, b)
     assert failed.to_numpy()[0] == 0
     assert np.abs(rhs.to_numpy().ravel() - expected).max() < tol * np.abs(expected).max()

@@ -26,7 +26,12 @@ Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
-Mat4s3 = ti.types.ndarray(dtype=ti.math.mat4, ndim=3)  # [S, N, k]: k 4x4 blocks per node
+# the implicit step's banded systems are factored in float64 in both precisions (a hair node's
+# mass and its bending stiffness over a large step differ by up to 1e7: float32 loses them)
+mat4d = ti.types.matrix(4, 4, ti.f64)
+vec4d = ti.types.vector(4, ti.f64)
+Mat4d3 = ti.types.ndarray(dtype=mat4d, ndim=3)  # [S, N, k]: k 4x4 blocks per node
+Vec4d2 = ti.types.ndarray(dtype=vec4d, ndim=2)
 
 
 def scalars(shape, value=None):
@@ -44,19 +49,21 @@ def ints(shape, value):
     return a
 
 
-def vectors(n, shape, value=None):
-    """A float ndarray of n-vectors with index `shape`, zero or filled from `value` [*shape, n]."""
+def vectors(n, shape, value=None, dtype=float):
+    """An ndarray of n-vectors (element type `dtype`, default the process's float) with index
+    `shape`, zero or filled from `value` [*shape, n]."""
     ensure_init()
-    a = ti.Vector.ndarray(n, float, shape)
+    a = ti.Vector.ndarray(n, dtype, shape)
     full = tuple(shape) + (n,)
-    a.from_numpy(np.broadcast_to(np.asarray(0.0 if value is None else value, dtype=np_float()), full).copy())
+    np_dtype = np.float64 if dtype is ti.f64 else np_float()
+    a.from_numpy(np.broadcast_to(np.asarray(0.0 if value is None else value, dtype=np_dtype), full).copy())
     return a
 
 
-def matrices(n, shape):
-    """A float ndarray of n x n matrices with index `shape`, zero."""
+def matrices(n, shape, dtype=float):
+    """An ndarray of n x n matrices (element type `dtype`) with index `shape`, zero."""
     ensure_init()
-    a = ti.Matrix.ndarray(n, n, float, shape)
+    a = ti.Matrix.ndarray(n, n, dtype, shape)
     a.fill(0.0)
     return a
 

@@ -68,7 +68,7 @@ def corner_signs(c):
 def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
     """Solve strand s's symmetric block-pentadiagonal system A y = b in place, O(n): for node
     rows i < n, blocks[s, i, 0] = A_ii, blocks[s, i, 1] = A_{i,i-1}, blocks[s, i, 2] =
-    A_{i,i-2} (4x4 each), rhs[s, i] = b_i. A = L D L^T with unit block lower L and block
+    A_{i,i-2} (4x4 float64 each), rhs[s, i] = b_i (float64). A = L D L^T with unit block lower L and block
     diagonal D, no pivoting (A may be indefinite, as a saddle-point system is, if every pivot
     block is invertible): blocks become (D_i^-1, L_{i,i-1}, L_{i,i-2}) and rhs the solution y.
     Returns 1 if a pivot block was singular (or NaN), else 0."""
@@ -77,8 +77,8 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
         a1 = blocks[s, i, 1]
         a2 = blocks[s, i, 2]
         d = blocks[s, i, 0]
-        l1 = ti.math.mat4(0.0)
-        l2 = ti.math.mat4(0.0)
+        l1 = ti.types.matrix(4, 4, ti.f64)(0.0)
+        l2 = ti.types.matrix(4, 4, ti.f64)(0.0)
         if i >= 2:
             l2 = a2 @ blocks[s, i - 2, 0]
             a1 -= a2 @ blocks[s, i - 1, 1].transpose()  # L_{i,i-2} D_{i-2} = A_{i,i-2}
@@ -88,8 +88,8 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
             d -= l1 @ a1.transpose()
         if not (ti.abs(d.determinant()) > 0.0):
             failed = 1
-            d = ti.math.mat4([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0],
-                              [0.0, 0.0, 0.0, 1.0]])
+            d = ti.types.matrix(4, 4, ti.f64)([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
+                                               [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
         blocks[s, i, 0] = d.inverse()
         blocks[s, i, 1] = l1
         blocks[s, i, 2] = l2

@@ -7,6 +7,7 @@ Arrays are Taichi ndarrays indexed [strand, node] (N = the groom's widest strand
 from dataclasses import dataclass
 
 import numpy as np
+import taichi as ti
 
 from . import arrays
 from .frames import update_frames, update_material_frames
@@ -88,9 +89,9 @@ class RodState:
     # the integrator is explicit
     v_prev: object = None  # [S, N] vec3: the velocities one step back [m/s]
     dx_prev: object = None  # [S, N] vec3: the last step's displacements [m]
-    blocks: object = None  # [S, N, 3] mat4: the block-banded saddle-point matrix (diagonal,
+    blocks: object = None  # [S, N, 3] float64 mat4: the block-banded saddle-point matrix (diagonal,
     # 1st and 2nd sub-diagonal blocks of each node's row), then its factor
-    block_rhs: object = None  # [S, N] vec4: the right-hand side, then the solution
+    block_rhs: object = None  # [S, N] float64 vec4: the right-hand side, then the solution
 
 
 def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
@@ -139,7 +140,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
         v_prev=arrays.vectors(3, nodes), dx_prev=arrays.vectors(3, nodes),
-        blocks=arrays.matrices(4, nodes + (3,)), block_rhs=arrays.vectors(4, nodes),
+        blocks=arrays.matrices(4, nodes + (3,), ti.f64), block_rhs=arrays.vectors(4, nodes, dtype=ti.f64),
     )
 
 

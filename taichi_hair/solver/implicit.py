@@ -22,19 +22,19 @@ after.
 
 import taichi as ti
 
-from ..rods.arrays import vec3, vec4
+from ..rods.arrays import mat4d, vec3, vec4d
 from ..rods.linalg import block_pentadiagonal_solve
 from ..rods.rod import edge_directors, first_node, node_edges
 
 mat3 = ti.math.mat3
-mat4 = ti.math.mat4
+mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat4d)
 HELD_DAMPING = 1e-6  # as the projection's (step.py)
 
 
 @ti.func
 def skew(a):
-    """The cross-product matrix: skew(a) b = a x b."""
-    return mat3([[0.0, -a.z, a.y], [a.z, 0.0, -a.x], [-a.y, a.x, 0.0]])
+    """The cross-product matrix: skew(a) b = a x b (float64)."""
+    return mat3d([[0.0, -a.z, a.y], [a.z, 0.0, -a.x], [-a.y, a.x, 0.0]])
 
 
 @ti.func
@@ -55,18 +55,20 @@ def node_stencil(s, i, clamp: ti.template(), st: ti.template(), md: ti.template(
     x_i, x_{i+1} [1/m] and its curvature stiffness T_i [J] (E_i ~ 1/2 dkb^T T_i dkb). At a
     clamped node 0 the previous edge is the clamp, which does not move: G0 = 0."""
     e0, e1 = node_edges(s, i, st.x, st.root_t)
-    p, q = kb_jacobians(e0, e1, st.kb[s, i])
+    p, q = kb_jacobians(ti.cast(e0, ti.f64), ti.cast(e1, ti.f64), ti.cast(st.kb[s, i], ti.f64))
     g0 = p
     g1 = -(p + q)
     if i == 0:
-        g0 = mat3(0.0)
+        g0 = mat3d(0.0)
         g1 = -q
-    k = md.stiffness[s]
-    t = mat3(0.0)
+    k = ti.cast(md.stiffness[s], ti.f64)
+    t = mat3d(0.0)
     for j in ti.static(range(2)):
         d1, d2 = edge_directors(s, i - 1 + j, st.m1, st.m2, st.root_t, st.root_u)
-        t += k.x * d2.outer_product(d2) + k.y * d1.outer_product(d1)
-    return g0, g1, q, t * (0.5 / md.voronoi[s, i])
+        m1 = ti.cast(d1, ti.f64)
+        m2 = ti.cast(d2, ti.f64)
+        t += k.x * m2.outer_product(m2) + k.y * m1.outer_product(m1)
+    return g0, g1, q, t * (0.5 / ti.cast(md.voronoi[s, i], ti.f64))
 
 
 @ti.func
@@ -78,10 +80,11 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
     for i in range(ti.static(first_node(clamp)), n - 1):
         g0, g1, g2, t = node_stencil(s, i, clamp, st, md)
         prev = ti.max(i - 1, 0)  # the clamp's node -1 does not exist: its G0 is 0
-        y = t @ (g0 @ st.dx_prev[s, prev] + g1 @ st.dx_prev[s, i] + g2 @ st.dx_prev[s, i + 1])
-        st.dx[s, prev] += g0.transpose() @ y
-        st.dx[s, i] += g1.transpose() @ y
-        st.dx[s, i + 1] += g2.transpose() @ y
+        y = t @ (g0 @ ti.cast(st.dx_prev[s, prev], ti.f64) + g1 @ ti.cast(st.dx_prev[s, i], ti.f64)
+                 + g2 @ ti.cast(st.dx_prev[s, i + 1], ti.f64))
+        st.dx[s, prev] += ti.cast(g0.transpose() @ y, float)
+        st.dx[s, i] += ti.cast(g1.transpose() @ y, float)
+        st.dx[s, i + 1] += ti.cast(g2.transpose() @ y, float)
         jac = (g0, g1, g2)
         t_jac = (scale * t @ g0, scale * t @ g1, scale * t @ g2)
         for a in ti.static(range(3)):
@@ -96,35 +99,38 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
 @ti.func
 def embed(m):
     """The 3x3 matrix m as the upper-left block of a 4x4 one (the node's velocity rows)."""
-    return mat4([[m[0, 0], m[0, 1], m[0, 2], 0.0], [m[1, 0], m[1, 1], m[1, 2], 0.0],
+    return mat4d([[m[0, 0], m[0, 1], m[0, 2], 0.0], [m[1, 0], m[1, 1], m[1, 2], 0.0],
                  [m[2, 0], m[2, 1], m[2, 2], 0.0], [0.0, 0.0, 0.0, 0.0]])
 
 
 @ti.func
 def velocity_row(t, value):
     """A 4x4 block whose only nonzero row is the last: (t, value) (a constraint's row)."""
-    return mat4([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0],
+    return mat4d([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0],
                  [t.x, t.y, t.z, value]])
 
 
 @ti.func
 def assemble_constraints(s, n, hh, md: ti.template(), st: ti.template()):
     """The length rows: node i's fourth unknown is the multiplier of edge i-1 (so the leading
-    blocks stay invertible with a held root), its row t . (v_i - v_{i-1}) hh = -(|e| - l) -
-    t . (dx_prev_i - dx_prev_{i-1}) / 3, t the edge's unit tangent (held nodes' velocities
-    are not unknowns; an edge held at both ends gets an identity row)."""
+    blocks stay invertible with a held root), its row c t . (v_i - v_{i-1}) hh = -c ((|e| - l)
+    + t . (dx_prev_i - dx_prev_{i-1}) / 3), t the edge's unit tangent, c = m_i the node's mass:
+    the scale that keeps the rows' entries near the velocity blocks' (hair nodes weigh ~1e-11
+    kg; unscaled, float32 pivots lose every digit). Held nodes' velocities are not unknowns;
+    an edge held at both ends gets an identity row."""
     for i in range(1, n):
         e = st.x[s, i] - st.x[s, i - 1]
         length = e.norm()
-        t = e / length
+        c = md.mass[s, i]
+        t = c * e / length
         w_prev = md.inv_mass[s, i - 1]
         w_next = md.inv_mass[s, i]
         rhs = st.block_rhs[s, i]
         if w_prev + w_next > 0.0:
-            gap = length - md.rest_length[s, i - 1] + t.dot(st.dx_prev[s, i] - st.dx_prev[s, i - 1]) / 3.0
+            gap = c * (length - md.rest_length[s, i - 1]) + t.dot(st.dx_prev[s, i] - st.dx_prev[s, i - 1]) / 3.0
             rhs[3] = -gap / hh
             # a taut stretch held at both ends (pins) is singular: damped as the projection is
-            d = velocity_row(vec3(0.0), -HELD_DAMPING * (w_prev + w_next))
+            d = velocity_row(vec3(0.0), -HELD_DAMPING * (w_prev + w_next) * c * c)
             if w_next > 0.0:
                 d += velocity_row(t, 0.0)
                 d += velocity_row(t, 0.0).transpose()
@@ -132,9 +138,9 @@ def assemble_constraints(s, n, hh, md: ti.template(), st: ti.template()):
             if w_prev > 0.0:
                 st.blocks[s, i, 1] += velocity_row(-t, 0.0)
         else:
-            st.blocks[s, i, 0] += velocity_row(vec3(0.0), 1.0)
+            st.blocks[s, i, 0] += velocity_row(vec3(0.0), c)
         st.block_rhs[s, i] = rhs
-    st.blocks[s, 0, 0] += velocity_row(vec3(0.0), 1.0)  # node 0 has no edge before it
+    st.blocks[s, 0, 0] += velocity_row(vec3(0.0), md.mass[s, 0])  # node 0 has no edge before it
 
 
 @ti.func
@@ -148,7 +154,7 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
     for i in range(n):
         st.dx[s, i] = vec3(0.0)
         for b in ti.static(range(3)):
-            st.blocks[s, i, b] = mat4(0.0)
+            st.blocks[s, i, b] = mat4d(0.0)
     assemble_stiffness(s, clamp, hh * hh, md, st)
     for i in range(n):
         rhs = vec3(0.0)
@@ -159,7 +165,7 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
             rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + damping * st.v[s, i] - st.dx[s, i] / 3.0)
             diagonal = md.mass[s, i] + hh * damping
         st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
-        st.block_rhs[s, i] = vec4(rhs.x, rhs.y, rhs.z, 0.0)
+        st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
     assemble_constraints(s, n, hh, md, st)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
     for i in range(n):
@@ -167,7 +173,7 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
         st.v_prev[s, i] = st.v[s, i]
         st.dx[s, i] = vec3(0.0)
         if md.inv_mass[s, i] > 0.0:
-            v_next = st.block_rhs[s, i].xyz
+            v_next = ti.cast(st.block_rhs[s, i].xyz, float)
             st.v[s, i] = v_next
             st.dx[s, i] = st.dx_prev[s, i] / 3.0 + hh * v_next
             st.x[s, i] += st.dx[s, i]

@@ -18,7 +18,8 @@ from dataclasses import asdict, dataclass
 
 import taichi as ti
 
-from ..rods.arrays import Ints1, Ints2, Mat4s3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec3
+from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4d2, Vec4s1,
+                           Vec4s2, mat4d, vec3)
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
@@ -97,7 +98,7 @@ StateArgs = ti.types.argpack(
     x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
     diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, v_prev=Vec3s2,
-    dx_prev=Vec3s2, blocks=Mat4s3, block_rhs=Vec4s2)
+    dx_prev=Vec3s2, blocks=Mat4d3, block_rhs=Vec4d2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
@@ -646,5 +647,5 @@ def bending_stiffness_blocks(clamp: ti.template(), md: ModelArgs, st: StateArgs)
         for i in range(md.node_count[s]):
             st.dx[s, i] = vec3(0.0)
             for b in ti.static(range(3)):
-                st.blocks[s, i, b] = ti.math.mat4(0.0)
+                st.blocks[s, i, b] = mat4d(0.0)
         assemble_stiffness(s, clamp, 1.0, md, st)

@@ -1,0 +1,198 @@
+"""`taichi-hair report implicit`: the implicit step against the explicit one on a scene (default
+scenes/shake_curly.py, as it is), in one process and one run:
+
+  speed     simulation ms per frame of the whole scene, explicit (substepped to its bound) and
+            implicit at the shot's dt; median over frames after the first (which compiles).
+  accuracy  a subset of the scene's guides (every k-th) for `seconds` of its motion: the tips'
+            deviation from a tiny-step explicit reference (dt = reference_dt, substepped to the
+            bound) at the end, RMS and max over strands / strand length, for each integrator at
+            dt = 1, 2, 4, 8, 16 ms, with the stepping wall time (after a warm-up run of each
+            integrator, so compilation is excluded), the substeps, the largest strain and the
+            deepest node below the head's surface.
+
+Everything printed is measured here; the JSON goes to --out.
+"""
+
+import json
+import statistics
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..rods.groom import Groom
+from ..solver.simulator import Simulator
+from ..solver.stability import SimulationDiverged
+
+STEPS_MS = (1, 2, 4, 8, 16)
+
+
+def _quiet_simulator(scene, dt, integrator):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
+        return Simulator.from_scene(scene, dt=dt, integrator=integrator)
+
+
+def subset(scene, every: int):
+    """The scene with every `every`-th guide of its groom (same head, material and motion)."""
+    keep = range(0, scene.groom.n_strands, every)
+    groom = Groom.from_polylines([scene.groom.strand(s) for s in keep])
+    materials = scene.material
+    if isinstance(materials, (list, tuple)):
+        materials = [materials[s] for s in keep]
+    return replace(scene, groom=groom, material=materials)
+
+
+def head_depth(sim, head_field) -> float:
+    """The deepest free node's signed distance from the head's surface [m] (negative: inside),
+    in head coordinates; head_field: Head.distance_field()."""
+    rotation, translation = sim.head_transform
+    x = sim.positions()[:, 1:].reshape(-1, 3)
+    return float(head_field.sample((x - translation) @ rotation).min())
+
+
+def _head_field(scene):
+    return None if scene.head is None else scene.head.distance_field()
+
+
+def max_strain(sim) -> float:
+    x = sim.positions()
+    rest = sim.model.rest_length.to_numpy()
+    edges = np.linalg.norm(np.diff(x, axis=1), axis=2)
+    valid = rest > 0
+    return float(np.abs(edges[valid] / rest[valid] - 1).max())
+
+
+def run_for(sim, seconds: float, frame_s: float, head_field=None):
+    """Step `seconds` in chunks of about a frame; returns (per-chunk wall times [s], the deepest
+    node's distance from the head's surface [m] (head_depth; inf without head_field), the
+    largest strain)."""
+    per_frame = max(1, round(frame_s / sim.dt))
+    total = max(1, round(seconds / sim.dt))
+    walls, depth, strain = [], float("inf"), 0.0
+    done = 0
+    while done < total:
+        k = min(per_frame, total - done)
+        start = time.perf_counter()
+        sim.step(k)
+        walls.append(time.perf_counter() - start)
+        done += k
+        if head_field is not None:
+            depth = min(depth, head_depth(sim, head_field))
+        strain = max(strain, max_strain(sim))
+    return walls, depth, strain
+
+
+def speed_rows(scene, dt: float, frames: int, frame_s: float, log=print) -> list:
+    """Simulation ms per frame of the whole scene for both integrators, same run."""
+    rows = []
+    for integrator in ("explicit", "implicit"):
+        sim = _quiet_simulator(scene, dt, integrator)
+        walls, depth, strain = run_for(sim, frames * frame_s, frame_s, _head_field(scene))
+        row = {"integrator": integrator, "dt": dt, "substeps": sim.substeps, "guides": scene.groom.n_strands,
+               "ms_per_frame": 1e3 * statistics.median(walls[1:] if len(walls) > 1 else walls),
+               "first_frame_ms": 1e3 * walls[0], "head_depth_mm": 1e3 * depth, "max_strain": strain}
+        rows.append(row)
+        log(f"speed {integrator}: {row['ms_per_frame']:.0f} ms/frame ({row['substeps']} substeps)")
+    return rows
+
+
+def tips(sim) -> np.ndarray:
+    x = sim.positions()
+    return x[np.arange(sim.n_strands), sim.groom.node_counts - 1]
+
+
+def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, log=print) -> dict:
+    """Tip deviation from the tiny-step explicit reference for both integrators at STEPS_MS."""
+    lengths = scene.groom.lengths()
+    reference = _quiet_simulator(scene, reference_dt, "explicit")
+    start = time.perf_counter()
+    run_for(reference, seconds, frame_s)
+    result = {"reference_dt": reference_dt, "reference_substeps": reference.substeps,
+              "reference_wall_s": time.perf_counter() - start, "rows": []}
+    target = tips(reference)
+    for integrator in ("explicit", "implicit"):
+        run_for(_quiet_simulator(scene, STEPS_MS[-1] * 1e-3, integrator), 3 * frame_s, frame_s)  # warm-up
+        for ms in STEPS_MS:
+            sim = _quiet_simulator(scene, ms * 1e-3, integrator)
+            row = {"integrator": integrator, "dt": ms * 1e-3, "substeps": sim.substeps}
+            try:
+                walls, depth, strain = run_for(sim, seconds, frame_s, _head_field(scene))
+                error = np.linalg.norm(tips(sim) - target, axis=1) / lengths
+                row.update(wall_s=sum(walls), tip_rms=float(np.sqrt(np.mean(error ** 2))),
+                           tip_max=float(error.max()), head_depth_mm=1e3 * depth, max_strain=strain)
+            except SimulationDiverged as err:
+                row.update(outcome=f"diverged: {err}")
+            result["rows"].append(row)
+            log(f"accuracy {integrator} dt {ms} ms: {row.get('tip_rms', row.get('outcome'))}")
+    return result
+
+
+def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: int = 10,
+                    seconds: float = 0.5, reference_dt: float = 1e-4, out_dir="out/reports", log=print) -> dict:
+    from .runner import load_scene_module
+    from .. import runtime
+    module = load_scene_module(script)
+    runtime.init(precision=getattr(module, "PRECISION", "float32"))
+    scene = module.build()
+    shot = module.shot() if callable(getattr(module, "shot", None)) else None
+    frame_s = 1.0 / (shot.fps if shot is not None else 24)
+    dt = shot.dt if shot is not None else 1e-3
+    result = {"scene": str(script), "precision": runtime.precision(),
+              "speed": speed_rows(scene, dt, frames, frame_s, log) if frames else [],
+              "accuracy": accuracy_rows(subset(scene, every), seconds, reference_dt, frame_s, log),
+              "every": every, "seconds": seconds}
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "implicit.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def format_implicit(result: dict) -> str:
+    lines = [f"scene {result['scene']} ({result['precision']})"]
+    if result["speed"]:
+        lines.append("whole scene: simulation ms per frame (median over frames after the first)")
+        lines.append(f"  {'integrator':10} {'guides':>6} {'dt ms':>6} {'substeps':>8} {'ms/frame':>9} "
+                     f"{'head depth mm':>13} {'max strain':>10}")
+        for r in result["speed"]:
+            lines.append(f"  {r['integrator']:10} {r['guides']:6d} {1e3 * r['dt']:6.2f} {r['substeps']:8d} "
+                         f"{r['ms_per_frame']:9.0f} {r['head_depth_mm']:13.3f} {r['max_strain']:10.1e}")
+        explicit, implicit = (r["ms_per_frame"] for r in result["speed"])
+        lines.append(f"  implicit speed-up: {explicit / implicit:.2f}x")
+    acc = result["accuracy"]
+    lines.append(f"every {result['every']}-th guide, {result['seconds']:g} s: tip deviation / L from explicit at "
+                 f"dt {1e3 * acc['reference_dt']:g} ms ({acc['reference_substeps']} substeps, "
+                 f"{acc['reference_wall_s']:.1f} s)")
+    lines.append(f"  {'integrator':10} {'dt ms':>6} {'substeps':>8} {'wall s':>7} {'tip rms':>9} {'tip max':>9} "
+                 f"{'head depth mm':>13} {'max strain':>10}")
+    for r in acc["rows"]:
+        if "outcome" in r:
+            lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.0f} {r['substeps']:8d}  {r['outcome'][:90]}")
+            continue
+        lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.0f} {r['substeps']:8d} {r['wall_s']:7.2f} "
+                     f"{r['tip_rms']:9.2e} {r['tip_max']:9.2e} {r['head_depth_mm']:13.3f} {r['max_strain']:10.1e}")
+    return "\n".join(lines)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("implicit", help="the implicit step against the explicit one: speed and accuracy "
+                                        "against a tiny-step reference on a scene")
+    p.add_argument("--scene", default="scenes/shake_curly.py")
+    p.add_argument("--frames", type=int, default=12, help="frames of the whole scene timed (0: skip)")
+    p.add_argument("--every", type=int, default=10, help="accuracy on every k-th guide")
+    p.add_argument("--seconds", type=float, default=0.5, help="simulated seconds of the accuracy runs")
+    p.add_argument("--reference-dt", type=float, default=1e-4, help="the explicit reference's dt [s]")
+    p.add_argument("--out", default="out/reports")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_main)
+
+
+def _main(args) -> int:
+    import sys
+    result = implicit_report(args.scene, frames=args.frames, every=args.every, seconds=args.seconds,
+                             reference_dt=args.reference_dt, out_dir=args.out,
+                             log=lambda text: print(text, file=sys.stderr, flush=True))
+    print(json.dumps(result, indent=1) if args.json else format_implicit(result))
+    return 0
