@@ -24,7 +24,8 @@ from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import assemble_stiffness, strand_implicit_predict, strand_implicit_velocities
+from .implicit import (assemble_stiffness, correct_lengths, strand_implicit_predict,
+                       strand_implicit_velocities)
 from .pins import strand_carry_root_frame, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
 from ..rods.state import COUNTERS
@@ -423,6 +424,9 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     if ti.static(fl.pins):
         strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
                           dr.pin_start, dr.pin_end, dr.head, now, st.x)
+    if ti.static(fl.implicit):
+        if correct_lengths(s, sc.h, ti.static(fl.root_mode == 0), md, st):
+            bad = 1
     return bad
 
 
