@@ -89,6 +89,7 @@ class RodState:
     # the integrator is explicit
     v_prev: object = None  # [S, N] vec3: the velocities one step back [m/s]
     dx_prev: object = None  # [S, N] vec3: the last step's displacements [m]
+    tension: object = None  # [S, N-1]: the edges' tensions at the last step [N]
     blocks: object = None  # [S, N, 3] float64 mat4: the block-banded saddle-point matrix (diagonal,
     # 1st and 2nd sub-diagonal blocks of each node's row), then its factor
     block_rhs: object = None  # [S, N] float64 vec4: the right-hand side, then the solution
@@ -140,6 +141,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
         v_prev=arrays.vectors(3, nodes), dx_prev=arrays.vectors(3, nodes),
+        tension=arrays.scalars(edges if implicit else (1, 1)),
         blocks=arrays.matrices(4, nodes + (3,), ti.f64), block_rhs=arrays.vectors(4, nodes, dtype=ti.f64),
     )
 

@@ -99,6 +99,36 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
 
 
 @ti.func
+def assemble_tension(s, n, scale, load_history: ti.template(), md: ti.template(), st: ti.template()):
+    """The constraints' geometric stiffness with the last step's tensions tau_j [N] (tension
+    only: max(tau, 0)): tau_j / |e_j| (I - t_j t_j^T) couples the edge's nodes (+ on each
+    node, - between them). blocks += scale times it (free-free couplings); with load_history,
+    st.dx += it times dx_prev [N]. Without it the step linearises the constraint forces as if
+    they did not turn with the edges, a first-order error: a swinging chain gained energy at
+    O(h)."""
+    for j in range(n - 1):
+        tau = st.tension[s, j]
+        if tau > 0.0:
+            e = ti.cast(st.x[s, j + 1] - st.x[s, j], ti.f64)
+            length = e.norm()
+            t = e / length
+            k = (ti.cast(tau, ti.f64) / length) * (mat3d([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+                                                   - t.outer_product(t))
+            if ti.static(load_history):
+                pull = ti.cast(k @ ti.cast(st.dx_prev[s, j + 1] - st.dx_prev[s, j], ti.f64), float)
+                st.dx[s, j + 1] += pull
+                st.dx[s, j] -= pull
+            w0 = md.inv_mass[s, j]
+            w1 = md.inv_mass[s, j + 1]
+            if w0 > 0.0:
+                st.blocks[s, j, 0] += embed(scale * k)
+            if w1 > 0.0:
+                st.blocks[s, j + 1, 0] += embed(scale * k)
+            if w0 > 0.0 and w1 > 0.0:
+                st.blocks[s, j + 1, 1] -= embed(scale * k)
+
+
+@ti.func
 def embed(m):
     """The 3x3 matrix m as the upper-left block of a 4x4 one (the node's velocity rows)."""
     return mat4d([[m[0, 0], m[0, 1], m[0, 2], 0.0], [m[1, 0], m[1, 1], m[1, 2], 0.0],
@@ -158,6 +188,7 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
         for b in ti.static(range(3)):
             st.blocks[s, i, b] = mat4d(0.0)
     assemble_stiffness(s, clamp, hh * hh, md, st)
+    assemble_tension(s, n, hh * hh, True, md, st)
     for i in range(n):
         rhs = vec3(0.0)
         diagonal = 1.0
@@ -170,6 +201,8 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
         st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
     assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
+    for i in range(1, n):  # the multiplier of edge i-1, scaled by m_i (assemble_constraints)
+        st.tension[s, i - 1] = ti.cast(st.block_rhs[s, i][3], float) * md.mass[s, i] / hh
     for i in range(n):
         st.x_prev[s, i] = st.x[s, i]
         st.v_prev[s, i] = st.v[s, i]
@@ -196,6 +229,7 @@ def correct_lengths(s, h, clamp: ti.template(), md: ti.template(), st: ti.templa
         for b in ti.static(range(3)):
             st.blocks[s, i, b] = mat4d(0.0)
     assemble_stiffness(s, clamp, hh * hh, md, st, False)
+    assemble_tension(s, n, hh * hh, False, md, st)
     for i in range(n):
         diagonal = 1.0
         if md.inv_mass[s, i] > 0.0:

@@ -99,7 +99,7 @@ StateArgs = ti.types.argpack(
     x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
     diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, v_prev=Vec3s2,
-    dx_prev=Vec3s2, blocks=Mat4d3, block_rhs=Vec4d2)
+    dx_prev=Vec3s2, tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
@@ -157,7 +157,8 @@ class StepBundles:
                                bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
                                root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
                                counters=st.counters, residuals=st.residuals, v_prev=st.v_prev,
-                               dx_prev=st.dx_prev, blocks=st.blocks, block_rhs=st.block_rhs)
+                               dx_prev=st.dx_prev, tension=st.tension, blocks=st.blocks,
+                               block_rhs=st.block_rhs)
         self._state, self._control, self.contacts = st, None, None
         self._drive_key, self._drive = None, None
 
@@ -632,13 +633,16 @@ def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalar
 
 
 @ti.kernel
-def seed_history(h: float, node_count: Ints1, v: Vec3s2, v_prev: Vec3s2, dx_prev: Vec3s2):
+def seed_history(h: float, node_count: Ints1, v: Vec3s2, v_prev: Vec3s2, dx_prev: Vec3s2, tension: Scalars2):
     """Start the implicit step's history as if each node had moved at its present velocity for
-    one step of h [s]: v_prev = v, dx_prev = h v (BDF2's first step is then second order)."""
+    one step of h [s]: v_prev = v, dx_prev = h v (BDF2's first step is then second order); no
+    tension known yet."""
     for s, i in ti.ndrange(v.shape[0], v.shape[1]):
         if i < node_count[s]:
             v_prev[s, i] = v[s, i]
             dx_prev[s, i] = h * v[s, i]
+            if i < tension.shape[1]:
+                tension[s, i] = 0.0
 
 
 @ti.kernel
