@@ -159,10 +159,14 @@ class TaichiHairSolver:
     # other), so neither ROD_CONTACT nor ROD_FRICTION. Obstacles: Plane and Capsule colliders.
     capabilities = frozenset({Capability.CYLINDER_CONTACT, Capability.PLANE_CONTACT})
 
+    integrator = "explicit"
+    IMPLICIT_DT = 1e-3  # the implicit step's default dt [s] (Simulator's), at most
+
     def __init__(self, time_step_scale: float = 1.0) -> None:
         if not (math.isfinite(time_step_scale) and time_step_scale > 0):
             raise ValueError(f"time_step_scale must be > 0, got {time_step_scale!r}")
         self.stability_factor = DEFAULT_STABILITY_FACTOR * time_step_scale
+        self.time_step_scale = time_step_scale
 
     # ---- what a run uses -----------------------------------------------------------------
     @staticmethod
@@ -174,11 +178,13 @@ class TaichiHairSolver:
         rate = 2.0 * scenario.slowest_frequency()
         return rate * min(r.material.density * r.area for r in scenario.rods)
 
-    @staticmethod
-    def _steps_per_frame(scenario: Scenario, n_frames: int) -> tuple[float, int]:
-        """The simulator's dt (one frame, or a fraction of it under 1 s) and steps per frame."""
+    def _steps_per_frame(self, scenario: Scenario, n_frames: int) -> tuple[float, int]:
+        """The simulator's dt and steps per frame: one frame, or a fraction of it under 0.5 s
+        (explicit: the simulator substeps to its bound); implicit: a fraction of the frame
+        under IMPLICIT_DT x time_step_scale, the implicit step's own default."""
         interval = scenario.duration / (n_frames - 1)
-        steps = max(1, math.ceil(interval / 0.5))
+        longest = 0.5 if self.integrator == "explicit" else self.IMPLICIT_DT * self.time_step_scale
+        steps = max(1, math.ceil(interval / longest - 1e-9))
         return interval / steps, steps
 
     def settings(self, scenario: Scenario, *, n_elements: int, n_frames: int) -> dict:
@@ -190,7 +196,9 @@ class TaichiHairSolver:
         except NotImplementedError:  # run() raises it again, and the run is reported unsupported
             steps = {}
         return {
-            "integrator": "symplectic Euler + fast inextensibility projection (explicit)",
+            "integrator": ("symplectic Euler + fast inextensibility projection (explicit)"
+                           if self.integrator == "explicit" else
+                           "linearised BDF2 with lengths in the solve + fast projection (implicit)"),
             **steps,
             "frame_step": dt,
             "stability_factor": self.stability_factor,
@@ -203,7 +211,7 @@ class TaichiHairSolver:
 
     # ---- build and run -------------------------------------------------------------------
     def _build(self, scenario: Scenario, n_elements: int, n_frames: int):
-        if self.stability_factor >= 2.0:
+        if self.stability_factor >= 2.0 and self.integrator == "explicit":
             raise NotImplementedError(
                 f"a time step {self.stability_factor / DEFAULT_STABILITY_FACTOR:g}x the default: "
                 f"at or past the explicit step's limit, which taichi_hair refuses to run")
@@ -238,6 +246,7 @@ class TaichiHairSolver:
                        twist="quasistatic", colliders=colliders,
                        stability_factor=self.stability_factor,
                        max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
+                       integrator=self.integrator,
                        root_motion=_motion_callable(motions[0]) if motions else None)
         if pinned_root:
             options["root"] = "pinned"
@@ -309,8 +318,16 @@ class TaichiHairSolver:
                           tuple(s.to_scenario(np.stack(d)) for s, d in zip(strands, directors)))
 
 
+class TaichiHairImplicitSolver(TaichiHairSolver):
+    """The same mapping with Simulator(integrator="implicit") at its default dt (1 ms, or the
+    frame interval if shorter; `time_step_scale` scales it)."""
+
+    name = "taichi_hair_implicit"
+    integrator = "implicit"
+
+
 # ---- side by side: `taichi-hair bench --cosseratbench` ---------------------------------------
-COMPARED = ("taichi_hair", "pyelastica", "mujoco")
+COMPARED = ("taichi_hair", "taichi_hair_implicit", "pyelastica", "mujoco")
 
 
 def compare(experiments=(), solvers=COMPARED, *, n_elements=None, out="out/cosseratbench",
@@ -346,17 +363,17 @@ def compare(experiments=(), solvers=COMPARED, *, n_elements=None, out="out/cosse
                 summaries[solver] = json.loads(path.read_text())
         metric_names = list(experiment.metrics)
         observation_names = ["max_strain", "max_penetration", "max_rod_overlap"]
-        header = (f"{'solver':12s} {'outcome':11s} {'n':>4s} {'wall [s]':>9s} "
+        header = (f"{'solver':20s} {'outcome':11s} {'n':>4s} {'wall [s]':>9s} "
                   + " ".join(f"{m:>22s}" for m in metric_names + observation_names))
         lines = [f"{experiment.name}: {experiment.description}", header]
         for solver in solvers:
             summary = summaries.get(solver)
             if summary is None:
                 why = missing.get((experiment.name, solver), "not run")
-                lines.append(f"{solver:12s} {why}")
+                lines.append(f"{solver:20s} {why}")
                 continue
             wall = summary["wall_time"]
-            row = (f"{solver:12s} {summary['outcome']:11s} {summary['n_elements']:4d} "
+            row = (f"{solver:20s} {summary['outcome']:11s} {summary['n_elements']:4d} "
                    + (f"{wall:9.2f} " if wall is not None else f"{'-':>9s} "))
             if summary["outcome"] == "completed":
                 values = [summary["metrics"].get(m) for m in metric_names]
