@@ -23,6 +23,7 @@ Ints1 = ti.types.ndarray(dtype=ti.i32, ndim=1)  # [S]
 Ints2 = ti.types.ndarray(dtype=ti.i32, ndim=2)  # [S, k]
 Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)  # [S]
 Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
+Vec3s3 = ti.types.ndarray(dtype=vec3, ndim=3)  # [S, N, k]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)

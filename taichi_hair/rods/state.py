@@ -53,6 +53,8 @@ class RodModel:
         return self.groom.max_nodes
 
 
+HIST_V, HIST_DX, HIST_ELASTIC, HIST_CHANGE = range(4)  # RodState.history's slots
+
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
 COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
@@ -87,8 +89,11 @@ class RodState:
     residuals: object  # [S, 2] float: projection and twist residual maxima
     # the implicit step's history and system (solver/implicit.py); [1, 1] placeholders when
     # the integrator is explicit
-    v_prev: object = None  # [S, N] vec3: the velocities one step back [m/s]
-    dx_prev: object = None  # [S, N] vec3: the last step's displacements [m]
+    # history [S, N, 4] vec3 (one array: Taichi caps a kernel's argument count):
+    # [..., HIST_V] the velocities one step back [m/s], [..., HIST_DX] the last step's
+    # displacements [m], [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none
+    # yet), [..., HIST_CHANGE] this step's elastic forces minus those [N]
+    history: object = None
     tension: object = None  # [S, N-1]: the edges' tensions at the last step [N]
     blocks: object = None  # [S, N, 3] float64 mat4: the block-banded saddle-point matrix (diagonal,
     # 1st and 2nd sub-diagonal blocks of each node's row), then its factor
@@ -140,8 +145,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        v_prev=arrays.vectors(3, nodes), dx_prev=arrays.vectors(3, nodes),
-        tension=arrays.scalars(edges if implicit else (1, 1)),
+        history=arrays.vectors(3, nodes + (4,)), tension=arrays.scalars(edges if implicit else (1, 1)),
         blocks=arrays.matrices(4, nodes + (3,), ti.f64), block_rhs=arrays.vectors(4, nodes, dtype=ti.f64),
     )
 

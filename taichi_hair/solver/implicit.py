@@ -24,6 +24,7 @@ import taichi as ti
 
 from ..rods.arrays import mat4d, vec3, vec4d
 from ..rods.linalg import block_pentadiagonal_solve
+from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.rod import edge_directors, first_node, node_edges
 
 mat3 = ti.math.mat3
@@ -82,8 +83,8 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
         g0, g1, g2, t = node_stencil(s, i, clamp, st, md)
         prev = ti.max(i - 1, 0)  # the clamp's node -1 does not exist: its G0 is 0
         if ti.static(load_history):
-            y = t @ (g0 @ ti.cast(st.dx_prev[s, prev], ti.f64) + g1 @ ti.cast(st.dx_prev[s, i], ti.f64)
-                     + g2 @ ti.cast(st.dx_prev[s, i + 1], ti.f64))
+            y = t @ (g0 @ ti.cast(st.history[s, prev, HIST_DX], ti.f64) + g1 @ ti.cast(st.history[s, i, HIST_DX], ti.f64)
+                     + g2 @ ti.cast(st.history[s, i + 1, HIST_DX], ti.f64))
             st.dx[s, prev] += ti.cast(g0.transpose() @ y, float)
             st.dx[s, i] += ti.cast(g1.transpose() @ y, float)
             st.dx[s, i + 1] += ti.cast(g2.transpose() @ y, float)
@@ -115,7 +116,7 @@ def assemble_tension(s, n, scale, load_history: ti.template(), md: ti.template()
             k = (ti.cast(tau, ti.f64) / length) * (mat3d([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
                                                    - t.outer_product(t))
             if ti.static(load_history):
-                pull = ti.cast(k @ ti.cast(st.dx_prev[s, j + 1] - st.dx_prev[s, j], ti.f64), float)
+                pull = ti.cast(k @ ti.cast(st.history[s, j + 1, HIST_DX] - st.history[s, j, HIST_DX], ti.f64), float)
                 st.dx[s, j + 1] += pull
                 st.dx[s, j] -= pull
             w0 = md.inv_mass[s, j]
@@ -126,6 +127,17 @@ def assemble_tension(s, n, scale, load_history: ti.template(), md: ti.template()
                 st.blocks[s, j + 1, 0] += embed(scale * k)
             if w0 > 0.0 and w1 > 0.0:
                 st.blocks[s, j + 1, 1] -= embed(scale * k)
+
+
+@ti.func
+def record_elastic_change(s, md: ti.template(), st: ti.template()):
+    """elastic_change = force - elastic_prev, elastic_prev = force, with force holding only the
+    elastic forces (called between them and the external ones); NaN where no earlier force is
+    known (the first step after seed_history)."""
+    for i in range(md.node_count[s]):
+        f = st.force[s, i]
+        st.history[s, i, HIST_CHANGE] = f - st.history[s, i, HIST_ELASTIC]
+        st.history[s, i, HIST_ELASTIC] = f
 
 
 @ti.func
@@ -159,7 +171,7 @@ def assemble_constraints(s, n, history, inv_step, md: ti.template(), st: ti.temp
         w_next = md.inv_mass[s, i]
         rhs = st.block_rhs[s, i]
         if w_prev + w_next > 0.0:
-            gap = c * (length - md.rest_length[s, i - 1]) + history * t.dot(st.dx_prev[s, i] - st.dx_prev[s, i - 1])
+            gap = c * (length - md.rest_length[s, i - 1]) + history * t.dot(st.history[s, i, HIST_DX] - st.history[s, i - 1, HIST_DX])
             rhs[3] = -gap * inv_step
             # a taut stretch held at both ends (pins) is singular: damped as the projection is
             d = velocity_row(vec3(0.0), -HELD_DAMPING * (w_prev + w_next) * c * c)
@@ -188,14 +200,22 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
         for b in ti.static(range(3)):
             st.blocks[s, i, b] = mat4d(0.0)
     assemble_stiffness(s, clamp, hh * hh, md, st)
+    # the part of the last step's elastic force change that K missed (module doc), carried
+    # into this step: r = f_n - f_{n-1} + K dx_prev (st.dx holds K dx_prev here)
+    for i in range(n):
+        r = st.history[s, i, HIST_CHANGE] + st.dx[s, i]
+        if not (r.dot(r) >= 0.0):  # NaN: no earlier force yet
+            r = vec3(0.0)
+        st.history[s, i, HIST_CHANGE] = r
     assemble_tension(s, n, hh * hh, True, md, st)
     for i in range(n):
         rhs = vec3(0.0)
         diagonal = 1.0
         if md.inv_mass[s, i] > 0.0:
             damping = drag * md.voronoi[s, i]
-            vhat = (4.0 * st.v[s, i] - st.v_prev[s, i]) / 3.0
-            rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + damping * st.v[s, i] - st.dx[s, i] / 3.0)
+            vhat = (4.0 * st.v[s, i] - st.history[s, i, HIST_V]) / 3.0
+            rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE] + damping * st.v[s, i]
+                                               - st.dx[s, i] / 3.0)
             diagonal = md.mass[s, i] + hh * damping
         st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
         st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
@@ -205,12 +225,12 @@ def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(),
         st.tension[s, i - 1] = ti.cast(st.block_rhs[s, i][3], float) * md.mass[s, i] / hh
     for i in range(n):
         st.x_prev[s, i] = st.x[s, i]
-        st.v_prev[s, i] = st.v[s, i]
+        st.history[s, i, HIST_V] = st.v[s, i]
         st.dx[s, i] = vec3(0.0)
         if md.inv_mass[s, i] > 0.0:
             v_next = ti.cast(st.block_rhs[s, i].xyz, float)
             st.v[s, i] = v_next
-            st.dx[s, i] = st.dx_prev[s, i] / 3.0 + hh * v_next
+            st.dx[s, i] = st.history[s, i, HIST_DX] / 3.0 + hh * v_next
             st.x[s, i] += st.dx[s, i]
     return failed
 
@@ -259,8 +279,8 @@ def strand_implicit_velocities(s, sc, md: ti.template(), st: ti.template()):
         disp = st.dx[s, i]
         if md.inv_mass[s, i] == 0.0:
             disp = st.x[s, i] - st.x_prev[s, i]
-        st.v[s, i] = (3.0 * disp - st.dx_prev[s, i]) * inv_2h
-        st.dx_prev[s, i] = disp
+        st.v[s, i] = (3.0 * disp - st.history[s, i, HIST_DX]) * inv_2h
+        st.history[s, i, HIST_DX] = disp
     for i in range(n):
         vel = st.v[s, i]
         if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):

@@ -302,7 +302,7 @@ class Simulator:
         h = self.dt / self.substeps
         if self.integrator == "implicit" and self._history_h != h:
             st = self.state
-            seed_history(h, self.model.node_count, st.v, st.v_prev, st.dx_prev, st.tension)
+            seed_history(h, self.model.node_count, st.v, st.history, st.tension)
             self._history_h = h
         remaining = total = n * self.substeps
         staged = timers is not None or self.interaction is not None

@@ -18,17 +18,17 @@ from dataclasses import asdict, dataclass
 
 import taichi as ti
 
-from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec4d2, Vec4s1,
+from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2, Vec4s1,
                            Vec4s2, mat4d, vec3)
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import (assemble_stiffness, correct_lengths, strand_implicit_predict,
+from .implicit import (assemble_stiffness, correct_lengths, record_elastic_change, strand_implicit_predict,
                        strand_implicit_velocities)
 from .pins import strand_carry_root_frame, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
-from ..rods.state import COUNTERS
+from ..rods.state import COUNTERS, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch,
                     strand_twist_quasistatic)
 
@@ -98,8 +98,8 @@ ModelArgs = ti.types.argpack(
 StateArgs = ti.types.argpack(
     x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
-    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, v_prev=Vec3s2,
-    dx_prev=Vec3s2, tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
+    tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
@@ -156,9 +156,8 @@ class StepBundles:
         self.state = StateArgs(x=st.x, v=st.v, x_prev=st.x_prev, dx=st.dx, force=st.force, theta=st.theta,
                                bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
                                root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
-                               counters=st.counters, residuals=st.residuals, v_prev=st.v_prev,
-                               dx_prev=st.dx_prev, tension=st.tension, blocks=st.blocks,
-                               block_rhs=st.block_rhs)
+                               counters=st.counters, residuals=st.residuals, history=st.history,
+                               tension=st.tension, blocks=st.blocks, block_rhs=st.block_rhs)
         self._state, self._control, self.contacts = st, None, None
         self._drive_key, self._drive = None, None
 
@@ -401,6 +400,8 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
     if ti.static(fl.twist_mode == 1):
         strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                             st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.implicit):
+        record_elastic_change(s, md, st)
     if ti.static(fl.external or fl.touch):
         strand_external_forces(s, k, fl, sc, md, st, dr)
     if ti.static(fl.user):
@@ -633,14 +634,15 @@ def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalar
 
 
 @ti.kernel
-def seed_history(h: float, node_count: Ints1, v: Vec3s2, v_prev: Vec3s2, dx_prev: Vec3s2, tension: Scalars2):
+def seed_history(h: float, node_count: Ints1, v: Vec3s2, history: Vec3s3, tension: Scalars2):
     """Start the implicit step's history as if each node had moved at its present velocity for
     one step of h [s]: v_prev = v, dx_prev = h v (BDF2's first step is then second order); no
-    tension known yet."""
+    tension or earlier elastic force known yet (NaN)."""
     for s, i in ti.ndrange(v.shape[0], v.shape[1]):
         if i < node_count[s]:
-            v_prev[s, i] = v[s, i]
-            dx_prev[s, i] = h * v[s, i]
+            history[s, i, HIST_V] = v[s, i]
+            history[s, i, HIST_DX] = h * v[s, i]
+            history[s, i, HIST_ELASTIC] = vec3(ti.math.nan)
             if i < tension.shape[1]:
                 tension[s, i] = 0.0
 
