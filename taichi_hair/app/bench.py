@@ -2,7 +2,8 @@
 
 Scene: S guides x 32 nodes of human hair (E = 3 GPa, G = 1 GPa, radius 40 um, 1 cm segments,
 rho = 1300 kg/m^3), roots spread over a 10 cm sphere and growing outward, gravity on, no drag,
-dt = 1 ms, twist "quasistatic" (the default). One simulated frame is 1/60 s (17 steps). Every number is a median
+dt = 1 ms, twist "quasistatic" (the default), each integrator asked for (explicit: substepped to
+its bound; implicit: one step). One simulated frame is 1/60 s (17 steps). Every number is a median
 of repeated runs after a warm-up; compile time (the first call) is reported apart.
 """
 
@@ -37,7 +38,8 @@ def _median_ms(samples):
     return 1e3 * statistics.median(samples)
 
 
-def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "quasistatic") -> dict:
+def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "quasistatic",
+               integrator: str = "explicit") -> dict:
     """Time one strand count in this process (Taichi already initialised)."""
     from ..rods.materials import Material
     from ..solver.simulator import Simulator
@@ -46,12 +48,13 @@ def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "qua
     material = Material(youngs_modulus=3e9, shear_modulus=1e9, radius=40e-6, density=1300.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        sim = Simulator(groom, material, dt=1e-3, twist=twist)
+        sim = Simulator(groom, material, dt=1e-3, twist=twist, integrator=integrator)
     steps = int(round(FRAME / sim.dt))
     compile_s, frame_ms = _time_frames(sim, repeats)
     stages = stage_breakdown(sim, stage_steps)
     return {
-        "strands": n_strands, "nodes": NODES, "steps_per_frame": steps, "substeps": sim.substeps,
+        "strands": n_strands, "integrator": integrator, "nodes": NODES, "steps_per_frame": steps,
+        "substeps": sim.substeps,
         "compile_s": compile_s, "ms_per_frame": frame_ms,
         "strand_node_steps_per_s": n_strands * NODES * steps / (frame_ms / 1e3),
         "stage_ms_per_step": stages,
@@ -97,7 +100,7 @@ def _time_frames(sim, repeats):
     return compile_s, _median_ms(samples)
 
 
-def bench_full_head(n_guides: int, repeats: int) -> dict:
+def bench_full_head(n_guides: int, repeats: int, integrators=("explicit",)) -> dict:
     """The project's head (mesh collider + neck/shoulder capsules) with n_guides x 32 nodes of
     straight hair from its scalp, shaking, with and without grid hair-hair interaction."""
     from ..world.forces import HairInteraction
@@ -110,29 +113,31 @@ def bench_full_head(n_guides: int, repeats: int) -> dict:
     groom = scalp_groom(head.model, n_guides, style="straight", length=SEGMENT * (NODES - 1),
                         n_nodes=NODES, collider=head.colliders[0].grid, seed=0)
     rows = []
-    for interaction in (None, HairInteraction()):
-        scene = Scene(groom=groom, head=head, material=Material(), motion=Shake(amplitude_deg=30, frequency_hz=1),
-                      hair_interaction=interaction)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            sim = Simulator.from_scene(scene, dt=1e-3)
-        compile_s, frame_ms = _time_frames(sim, repeats)
-        rows.append({"guides": n_guides, "hair_interaction": interaction is not None, "substeps": sim.substeps,
-                     "compile_s": compile_s, "ms_per_frame": frame_ms,
-                     "strand_node_steps_per_s": n_guides * NODES * round(FRAME / sim.dt) / (frame_ms / 1e3)})
+    for integrator in integrators:
+        for interaction in (None, HairInteraction()):
+            scene = Scene(groom=groom, head=head, material=Material(), motion=Shake(amplitude_deg=30, frequency_hz=1),
+                          hair_interaction=interaction, integrator=integrator)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                sim = Simulator.from_scene(scene, dt=1e-3)
+            compile_s, frame_ms = _time_frames(sim, repeats)
+            rows.append({"guides": n_guides, "integrator": integrator, "hair_interaction": interaction is not None,
+                         "substeps": sim.substeps, "compile_s": compile_s, "ms_per_frame": frame_ms,
+                         "strand_node_steps_per_s": n_guides * NODES * round(FRAME / sim.dt) / (frame_ms / 1e3)})
     return {"scene": "default head mesh + capsules, straight combed hair, shake 30 deg at 1 Hz, dt 1 ms", "rows": rows}
 
 
 def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int, twist: str,
-              head_guides: int = 0, dense: int = 0) -> dict:
+              head_guides: int = 0, dense: int = 0, integrators=("explicit",)) -> dict:
     from ..runtime import init
     init(arch=arch, precision=precision)
     result = {"arch": arch, "precision": precision, "dt": 1e-3, "frame_s": FRAME, "twist": twist,
               "scene": "human hair: E 3 GPa, G 1 GPa, r 40 um, rho 1300, 32 nodes, 1 cm segments, "
                        "gravity on, no drag",
-              "cases": [bench_case(n, repeats, stage_steps, twist) for n in strands]}
+              "cases": [bench_case(n, repeats, stage_steps, twist, integrator)
+                        for integrator in integrators for n in strands]}
     if head_guides:
-        result["full_head"] = bench_full_head(head_guides, max(1, repeats // 2))
+        result["full_head"] = bench_full_head(head_guides, max(1, repeats // 2), integrators)
     if dense:
         from ..hair.interpolate import bench_interpolation
         result["interpolation"] = bench_interpolation(n_dense=dense, n_nodes=NODES, n_guides=1000,
@@ -146,11 +151,13 @@ def format_table(result: dict) -> str:
     lines = [f"taichi_hair bench: arch {result['arch']}, precision {result['precision']}, "
              f"dt {result['dt'] * 1e3:g} ms, frame 1/60 s, twist {result['twist']}",
              f"scene: {result['scene']}",
-             f"{'strands':>8} {'compile s':>9} {'ms/frame':>10} {'node-steps/s':>13} | per step, ms: "
+             f"{'strands':>8} {'integrator':>10} {'substeps':>8} {'compile s':>9} {'ms/frame':>10} "
+             f"{'node-steps/s':>13} | per step, ms: "
              + " ".join(f"{n:>14}" for n in stage_names)]
     for c in result["cases"]:
         stage = " ".join(f"{c['stage_ms_per_step'].get(n, 0.0):14.3f}" for n in stage_names)
-        lines.append(f"{c['strands']:8d} {c['compile_s']:9.2f} {c['ms_per_frame']:10.2f} "
+        lines.append(f"{c['strands']:8d} {c.get('integrator', 'explicit'):>10} {c['substeps']:8d} "
+                     f"{c['compile_s']:9.2f} {c['ms_per_frame']:10.2f} "
                      f"{c['strand_node_steps_per_s']:13.3e} | {'':13} {stage}")
     lines.append("ms/frame: fused launch (all stages in one kernel per frame), median; stage columns: "
                  "one synchronised kernel per stage, median per step (includes launch overhead)")
@@ -158,7 +165,8 @@ def format_table(result: dict) -> str:
         head = result["full_head"]
         lines.append(f"full head: {head['scene']}")
         for row in head["rows"]:
-            lines.append(f"{row['guides']:8d} guides, hair-hair {'on ' if row['hair_interaction'] else 'off'}: "
+            lines.append(f"{row['guides']:8d} guides, {row.get('integrator', 'explicit')}, "
+                         f"hair-hair {'on ' if row['hair_interaction'] else 'off'}: "
                          f"{row['ms_per_frame']:10.1f} ms/frame  {row['strand_node_steps_per_s']:.3e} node-steps/s"
                          f"  ({row['substeps']} substeps, compile {row['compile_s']:.1f} s)")
     if "interpolation" in result:
@@ -177,18 +185,20 @@ def main(args) -> int:
                              f"pip install 'taichi_hair[bench]'") from None
         return bench_main(args)
     strands = [int(s) for s in args.strands.split(",")]
+    integrators = ("explicit", "implicit") if args.integrator == "both" else (args.integrator,)
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
     results = []
     for precision in precisions:
         if len(precisions) == 1:
             results.append(run_bench(args.arch, precision, strands, args.repeats, args.stage_steps,
-                                     args.twist, args.head_guides, args.dense))
+                                     args.twist, args.head_guides, args.dense, integrators))
             continue
         # one precision per process: Taichi cannot change it after init
         cmd = [sys.executable, "-m", "taichi_hair", "bench", "--json", "--arch", args.arch,
                "--precision", precision, "--strands", args.strands, "--repeats", str(args.repeats),
                "--stage-steps", str(args.stage_steps), "--twist", args.twist,
-               "--head-guides", str(args.head_guides), "--dense", str(args.dense)]
+               "--head-guides", str(args.head_guides), "--dense", str(args.dense),
+               "--integrator", args.integrator]
         out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
         results.extend(json.loads(out[out.index("[\n"):]))  # skip Taichi's banner line
     if args.json:
@@ -206,6 +216,8 @@ def add_parser(sub):
     p.add_argument("--repeats", type=int, default=5, help="timed frames per case (median)")
     p.add_argument("--stage-steps", type=int, default=5, help="steps timed stage by stage")
     p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
+    p.add_argument("--integrator", default="both", choices=["explicit", "implicit", "both"],
+                   help="rows for each integrator (default both)")
     p.add_argument("--head-guides", type=int, default=1000,
                    help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
     p.add_argument("--dense", type=int, default=100_000,

@@ -1,23 +1,25 @@
-"""The implicit step (integrator="implicit"): linearised BDF2 on the nodes with the edge
-lengths as constraints inside the solve, one block-banded solve per strand, then the same fast
-projection for what the linearisation left; velocities from BDF2's difference formula
-(docs/model.md, "The implicit step").
+"""The implicit step (integrator="implicit", docs/model.md "The implicit step"): linearised
+BDF2 with the edge lengths as constraints inside one block-banded solve per strand, a Newton
+step back onto the lengths in the same metric, then the fast projection as in the explicit
+step; velocities from BDF2's difference formula.
 
-Per strand, with hh = 2h/3, the history x_{n-1} = x_n - dx_prev and v_{n-1} = v_prev:
+Per strand, with hh = 2h/3 and the history x_{n-1} = x_n - dx_prev, v_{n-1}:
 
-    [ M + hh D + hh^2 K   G^T ] [ v_{n+1} ]   [ M vhat + hh (f_n + D v_n - K dx_prev / 3) ]
-    [ G                   0   ] [ lambda  ] = [ -(|e| - l + G dx_prev / 3) / hh            ]
+    [ M + hh D + hh^2 (K + K_t)   G^T ] [ v_{n+1} ]   [ M vhat + hh (f_n + r_n + D v_n - (K + K_t) dx_prev / 3) ]
+    [ G                           0   ] [ lambda  ] = [ -(|e| - l + G dx_prev / 3) / hh                         ]
 
     vhat = (4 v_n - v_{n-1}) / 3,   x_{n+1} = xhat + hh v_{n+1},   xhat = x_n + dx_prev / 3,
 
 K the Gauss-Newton stiffness of the bending energy (sum over bending nodes of
 (dkb_i/dx)^T T_i (dkb_i/dx), T_i = sum_j (EI1 m2^j m2^j^T + EI2 m1^j m1^j^T) / (2 l_i)),
-D the air drag's diagonal, G the edges' unit tangents (t . (v_i - v_{i-1}) per edge), lambda
-the edges' impulses. A bending stencil couples nodes i-1..i+1: with each edge's multiplier
-stored with its far node the matrix is block-pentadiagonal in 4x4 node blocks, symmetric and
+K_t the constraints' geometric stiffness from the last step's tensions, r_n the part of the
+last step's elastic force change that K did not predict, D the air drag's diagonal, G the
+edges' unit tangents (t . (v_i - v_{i-1}) per edge, rows scaled by the node mass), lambda the
+edges' impulses. A bending stencil couples nodes i-1..i+1: with each edge's multiplier stored
+with its far node the matrix is block-pentadiagonal in 4x4 node blocks, symmetric and
 indefinite, and factored by block LDL^T without pivoting in O(n) per strand (one thread per
-strand). Held nodes (the root, pins) keep identity rows: the root placement and pins set them
-after.
+strand), in float64 in both precisions. Held nodes (the root, pins) keep identity rows: the
+root placement and pins set them after.
 """
 
 import taichi as ti
@@ -73,8 +75,7 @@ def node_stencil(s, i, clamp: ti.template(), st: ti.template(), md: ti.template(
 
 
 @ti.func
-def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti.template(),
-                       load_history: ti.template() = True):
+def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti.template(), load_history=1):
     """blocks += scale K (free-free couplings only; blocks as in block_pentadiagonal_solve) and
     st.dx += K dx_prev [N] on every node (held ones included: a moving root's last
     displacement loads its neighbours)."""
@@ -82,7 +83,7 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
     for i in range(ti.static(first_node(clamp)), n - 1):
         g0, g1, g2, t = node_stencil(s, i, clamp, st, md)
         prev = ti.max(i - 1, 0)  # the clamp's node -1 does not exist: its G0 is 0
-        if ti.static(load_history):
+        if load_history:
             y = t @ (g0 @ ti.cast(st.history[s, prev, HIST_DX], ti.f64) + g1 @ ti.cast(st.history[s, i, HIST_DX], ti.f64)
                      + g2 @ ti.cast(st.history[s, i + 1, HIST_DX], ti.f64))
             st.dx[s, prev] += ti.cast(g0.transpose() @ y, float)
@@ -100,7 +101,7 @@ def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti
 
 
 @ti.func
-def assemble_tension(s, n, scale, load_history: ti.template(), md: ti.template(), st: ti.template()):
+def assemble_tension(s, n, scale, load_history, md: ti.template(), st: ti.template()):
     """The constraints' geometric stiffness with the last step's tensions tau_j [N] (tension
     only: max(tau, 0)): tau_j / |e_j| (I - t_j t_j^T) couples the edge's nodes (+ on each
     node, - between them). blocks += scale times it (free-free couplings); with load_history,
@@ -115,7 +116,7 @@ def assemble_tension(s, n, scale, load_history: ti.template(), md: ti.template()
             t = e / length
             k = (ti.cast(tau, ti.f64) / length) * (mat3d([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
                                                    - t.outer_product(t))
-            if ti.static(load_history):
+            if load_history:
                 pull = ti.cast(k @ ti.cast(st.history[s, j + 1, HIST_DX] - st.history[s, j, HIST_DX], ti.f64), float)
                 st.dx[s, j + 1] += pull
                 st.dx[s, j] -= pull
@@ -188,81 +189,72 @@ def assemble_constraints(s, n, history, inv_step, md: ti.template(), st: ti.temp
 
 
 @ti.func
-def strand_implicit_predict(s, h, drag, clamp: ti.template(), md: ti.template(), st: ti.template()):
-    """The BDF2 predictor (module doc): solves for v_{n+1} with the edge lengths linearised
-    inside the solve, sets x_prev = x_n, v_prev = v_n, dx = x_{n+1} - x_n and x = x_{n+1} on
-    free nodes (held nodes: dx = 0, placed after). Returns 1 if the factorisation met a
-    singular pivot (a non-finite state), else 0."""
+def strand_implicit_pass(s, correction, h, drag, clamp: ti.template(), md: ti.template(), st: ti.template()):
+    """One of the step's two solves (module doc), chosen at run time so the kernel holds one
+    copy of the assembly and the solver (they dominate its compile time).
+
+    correction 0, the BDF2 predictor: solves for v_{n+1} with the edge lengths linearised
+    inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n
+    and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
+    correction 1, after the root and pins are placed: one Newton step back onto the edge
+    lengths in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) with
+    t_j . (move_{j+1} - move_j) = -(|e_j| - l_j), added to x and dx. The predictor holds the
+    lengths only to first order; the fast projection that follows removes the rest in the
+    metric M, which for stiff hair over a large step is a kink (a falling hair gained 27 % of
+    the energy in play in 0.2 s at 20 ms without this).
+    Returns 1 if the factorisation met a singular pivot (a non-finite state), else 0."""
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
+    predict = correction == 0
     for i in range(n):
-        st.dx[s, i] = vec3(0.0)
+        if predict:
+            st.dx[s, i] = vec3(0.0)
         for b in ti.static(range(3)):
             st.blocks[s, i, b] = mat4d(0.0)
-    assemble_stiffness(s, clamp, hh * hh, md, st)
-    # the part of the last step's elastic force change that K missed (module doc), carried
-    # into this step: r = f_n - f_{n-1} + K dx_prev (st.dx holds K dx_prev here)
-    for i in range(n):
-        r = st.history[s, i, HIST_CHANGE] + st.dx[s, i]
-        if not (r.dot(r) >= 0.0):  # NaN: no earlier force yet
-            r = vec3(0.0)
-        st.history[s, i, HIST_CHANGE] = r
-    assemble_tension(s, n, hh * hh, True, md, st)
+    assemble_stiffness(s, clamp, hh * hh, md, st, predict)
+    if predict:
+        # the part of the last step's elastic force change that K missed (module doc), carried
+        # into this step: r = f_n - f_{n-1} + K dx_prev (st.dx holds K dx_prev here)
+        for i in range(n):
+            r = st.history[s, i, HIST_CHANGE] + st.dx[s, i]
+            if not (r.dot(r) >= 0.0):  # NaN: no earlier force yet
+                r = vec3(0.0)
+            st.history[s, i, HIST_CHANGE] = r
+    assemble_tension(s, n, hh * hh, predict, md, st)
     for i in range(n):
         rhs = vec3(0.0)
         diagonal = 1.0
         if md.inv_mass[s, i] > 0.0:
-            damping = drag * md.voronoi[s, i]
-            vhat = (4.0 * st.v[s, i] - st.history[s, i, HIST_V]) / 3.0
-            rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE] + damping * st.v[s, i]
-                                               - st.dx[s, i] / 3.0)
-            diagonal = md.mass[s, i] + hh * damping
+            diagonal = md.mass[s, i]
+            if predict:
+                damping = drag * md.voronoi[s, i]
+                vhat = (4.0 * st.v[s, i] - st.history[s, i, HIST_V]) / 3.0
+                rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE]
+                                                   + damping * st.v[s, i] - st.dx[s, i] / 3.0)
+                diagonal += hh * damping
         st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
         st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
-    assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
+    if predict:
+        assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
+    else:
+        assemble_constraints(s, n, 0.0, 1.0, md, st)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
-    for i in range(1, n):  # the multiplier of edge i-1, scaled by m_i (assemble_constraints)
-        st.tension[s, i - 1] = ti.cast(st.block_rhs[s, i][3], float) * md.mass[s, i] / hh
+    if predict:
+        for i in range(1, n):  # the multiplier of edge i-1, scaled by m_i (assemble_constraints)
+            st.tension[s, i - 1] = ti.cast(st.block_rhs[s, i][3], float) * md.mass[s, i] / hh
     for i in range(n):
-        st.x_prev[s, i] = st.x[s, i]
-        st.history[s, i, HIST_V] = st.v[s, i]
-        st.dx[s, i] = vec3(0.0)
+        if predict:
+            st.x_prev[s, i] = st.x[s, i]
+            st.history[s, i, HIST_V] = st.v[s, i]
         if md.inv_mass[s, i] > 0.0:
-            v_next = ti.cast(st.block_rhs[s, i].xyz, float)
-            st.v[s, i] = v_next
-            st.dx[s, i] = st.history[s, i, HIST_DX] / 3.0 + hh * v_next
-            st.x[s, i] += st.dx[s, i]
-    return failed
-
-
-@ti.func
-def correct_lengths(s, h, clamp: ti.template(), md: ti.template(), st: ti.template()):
-    """One Newton step back onto the edge lengths in the step's own metric: the smallest move
-    dx in (M + hh^2 K) with t_j . (dx_{j+1} - dx_j) = -(|e_j| - l_j), added to x and to the
-    step's displacement. The predictor holds the lengths only to first order; the fast
-    projection that follows would remove the rest in the metric M, which for stiff hair over a
-    large step is a kink (a high bending mode's worth of energy every step: +27 % of the energy
-    in play in 0.2 s of a falling hair at 20 ms). Returns 1 on a singular pivot."""
-    n = md.node_count[s]
-    hh = 2.0 * h / 3.0
-    for i in range(n):
-        for b in ti.static(range(3)):
-            st.blocks[s, i, b] = mat4d(0.0)
-    assemble_stiffness(s, clamp, hh * hh, md, st, False)
-    assemble_tension(s, n, hh * hh, False, md, st)
-    for i in range(n):
-        diagonal = 1.0
-        if md.inv_mass[s, i] > 0.0:
-            diagonal = md.mass[s, i]
-        st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
-        st.block_rhs[s, i] = vec4d(0.0)
-    assemble_constraints(s, n, 0.0, 1.0, md, st)
-    failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
-    for i in range(n):
-        if md.inv_mass[s, i] > 0.0:
-            move = ti.cast(st.block_rhs[s, i].xyz, float)
-            st.x[s, i] += move
-            st.dx[s, i] += move
+            solved = ti.cast(st.block_rhs[s, i].xyz, float)
+            if predict:
+                st.v[s, i] = solved
+                st.dx[s, i] = st.history[s, i, HIST_DX] / 3.0 + hh * solved
+                st.x[s, i] += st.dx[s, i]
+            else:
+                st.x[s, i] += solved
+                st.dx[s, i] += solved
     return failed
 
 

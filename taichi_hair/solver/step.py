@@ -24,7 +24,7 @@ from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import (assemble_stiffness, correct_lengths, record_elastic_change, strand_implicit_predict,
+from .implicit import (assemble_stiffness, record_elastic_change, strand_implicit_pass,
                        strand_implicit_velocities)
 from .pins import strand_carry_root_frame, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
@@ -413,23 +413,30 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
 @ti.func
 def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
                     co: ti.template()):
-    """Symplectic Euler, or the implicit step's predictor; the root onto the head pose ending
-    the step; pinned nodes min(1, pin_f0 + (k + 1) pin_df) of the way to their targets. Fails
-    if the implicit step's factorisation does."""
+    """Symplectic Euler, or the implicit step's predictor and length correction (implicit.py);
+    the root onto the head pose ending the step; pinned nodes min(1, pin_f0 + (k + 1) pin_df) of
+    the way to their targets. Fails if the implicit step's factorisation does."""
     now, _ = head_poses(k, fl)
     bad = 0
     if ti.static(fl.implicit):
-        bad = strand_implicit_predict(s, sc.h, sc.drag, ti.static(fl.root_mode == 0), md, st)
+        for correction in range(2):  # a run-time loop: one copy of the solve in the kernel
+            if strand_implicit_pass(s, correction, sc.h, sc.drag, ti.static(fl.root_mode == 0), md, st):
+                bad = 1
+            if correction == 0:
+                place_root_and_pins(s, k, now, fl, sc, md, st, dr)
     else:
         strand_symplectic_euler(s, sc.h, md, st)
+        place_root_and_pins(s, k, now, fl, sc, md, st, dr)
+    return bad
+
+
+@ti.func
+def place_root_and_pins(s, k, now, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template()):
+    """The root onto head pose `now`; pins min(1, pin_f0 + (k + 1) pin_df) of the way to their targets."""
     strand_place_root(s, dr.head, now, md.root_frame, st.x, st.root_t, st.root_u, fl.root_mode)
     if ti.static(fl.pins):
         strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
                           dr.pin_start, dr.pin_end, dr.head, now, st.x)
-    if ti.static(fl.implicit):
-        if correct_lengths(s, sc.h, ti.static(fl.root_mode == 0), md, st):
-            bad = 1
-    return bad
 
 
 @ti.func
