@@ -592,8 +592,7 @@ STABILITY_AXES = {
     "hand": ("hand_speed",), "pin": ("pin",),
     "interaction": ("interaction", "cell", "repulsion", "interaction_friction"),
     "head": ("head",), "twist": ("twist",), "precision": ("precision",), "limits": ("strict", "max_substeps"),
-    "integrator": ("integrator",),
-}
+}  # the integrator is not an axis: `report stability --integrator implicit` runs the whole matrix with it
 
 
 def case_axes(case: StabilityCase) -> list:
