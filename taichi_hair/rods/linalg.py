@@ -63,7 +63,6 @@ def corner_signs(c):
                       ti.select(c[2] == 1, 1.0, -1.0)])
 
 
-
 @ti.func
 def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
     """Solve strand s's symmetric block-pentadiagonal system A y = b in place, O(n): for node
@@ -88,8 +87,7 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
             d -= l1 @ a1.transpose()
         if not (ti.abs(d.determinant()) > 0.0):
             failed = 1
-            d = ti.types.matrix(4, 4, ti.f64)([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
-                                               [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+            d = ti.Matrix.identity(ti.f64, 4)
         blocks[s, i, 0] = d.inverse()
         blocks[s, i, 1] = l1
         blocks[s, i, 2] = l2

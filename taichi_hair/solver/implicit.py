@@ -28,10 +28,9 @@ from ..rods.arrays import mat4d, vec3, vec4d
 from ..rods.linalg import block_pentadiagonal_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.rod import edge_directors, first_node, node_edges
+from .pins import HELD_DAMPING
 
-mat3 = ti.math.mat3
 mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat4d)
-HELD_DAMPING = 1e-6  # as the projection's (step.py)
 
 
 @ti.func
@@ -114,8 +113,7 @@ def assemble_tension(s, n, scale, load_history, md: ti.template(), st: ti.templa
             e = ti.cast(st.x[s, j + 1] - st.x[s, j], ti.f64)
             length = e.norm()
             t = e / length
-            k = (ti.cast(tau, ti.f64) / length) * (mat3d([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-                                                   - t.outer_product(t))
+            k = (ti.cast(tau, ti.f64) / length) * (ti.Matrix.identity(ti.f64, 3) - t.outer_product(t))
             if load_history:
                 pull = ti.cast(k @ ti.cast(st.history[s, j + 1, HIST_DX] - st.history[s, j, HIST_DX], ti.f64), float)
                 st.dx[s, j + 1] += pull
@@ -189,6 +187,16 @@ def assemble_constraints(s, n, history, inv_step, md: ti.template(), st: ti.temp
 
 
 @ti.func
+def clear_system(s, n, clear_dx, st: ti.template()):
+    """Zero strand s's blocks (and with clear_dx its dx, the K dx_prev accumulator)."""
+    for i in range(n):
+        if clear_dx:
+            st.dx[s, i] = vec3(0.0)
+        for b in ti.static(range(3)):
+            st.blocks[s, i, b] = mat4d(0.0)
+
+
+@ti.func
 def strand_implicit_pass(s, correction, h, drag, clamp: ti.template(), md: ti.template(), st: ti.template()):
     """One of the step's two solves (module doc), chosen at run time so the kernel holds one
     copy of the assembly and the solver (they dominate its compile time).
@@ -206,11 +214,7 @@ def strand_implicit_pass(s, correction, h, drag, clamp: ti.template(), md: ti.te
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
     predict = correction == 0
-    for i in range(n):
-        if predict:
-            st.dx[s, i] = vec3(0.0)
-        for b in ti.static(range(3)):
-            st.blocks[s, i, b] = mat4d(0.0)
+    clear_system(s, n, predict, st)
     assemble_stiffness(s, clamp, hh * hh, md, st, predict)
     if predict:
         # the part of the last step's elastic force change that K missed (module doc), carried
@@ -232,7 +236,7 @@ def strand_implicit_pass(s, correction, h, drag, clamp: ti.template(), md: ti.te
                 rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE]
                                                    + damping * st.v[s, i] - st.dx[s, i] / 3.0)
                 diagonal += hh * damping
-        st.blocks[s, i, 0] += embed(diagonal * mat3([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        st.blocks[s, i, 0] += embed(diagonal * ti.Matrix.identity(float, 3))
         st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
     if predict:
         assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
@@ -266,15 +270,13 @@ def strand_implicit_velocities(s, sc, md: ti.template(), st: ti.template()):
     Returns 1 if a node is non-finite or faster than max_speed, else 0."""
     bad = 0
     inv_2h = 0.5 / sc.h
-    n = md.node_count[s]
-    for i in range(n):
+    for i in range(md.node_count[s]):
         disp = st.dx[s, i]
         if md.inv_mass[s, i] == 0.0:
             disp = st.x[s, i] - st.x_prev[s, i]
-        st.v[s, i] = (3.0 * disp - st.history[s, i, HIST_DX]) * inv_2h
+        vel = (3.0 * disp - st.history[s, i, HIST_DX]) * inv_2h
+        st.v[s, i] = vel
         st.history[s, i, HIST_DX] = disp
-    for i in range(n):
-        vel = st.v[s, i]
         if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):
             bad = 1
     return bad

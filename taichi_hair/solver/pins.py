@@ -37,6 +37,12 @@ from ..rods.frames import parallel_transport
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
 ROOT_MODES = ("clamped", "pinned", "edge")
+# With pins a stretch of strand can be held at both ends; taut and straight, its projection
+# system is singular (more length constraints than the free nodes can move along the line).
+# Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
+# it slows the linear convergence only by a factor HELD_DAMPING per iteration. The implicit
+# step damps its length rows by the same amount.
+HELD_DAMPING = 1e-6
 
 
 @ti.func

@@ -19,14 +19,14 @@ from dataclasses import asdict, dataclass
 import taichi as ti
 
 from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2, Vec4s1,
-                           Vec4s2, mat4d, vec3)
+                           Vec4s2, vec3)
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import (assemble_stiffness, record_elastic_change, strand_implicit_pass,
+from .implicit import (assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
                        strand_implicit_velocities)
-from .pins import strand_carry_root_frame, strand_place_pins
+from .pins import HELD_DAMPING, strand_carry_root_frame, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
 from ..rods.state import COUNTERS, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch,
@@ -39,11 +39,6 @@ TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
-# With pins a stretch of strand can be held at both ends; taut and straight, its projection
-# system is singular (more length constraints than the free nodes can move along the line).
-# Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
-# it slows the linear convergence only by a factor HELD_DAMPING per iteration.
-HELD_DAMPING = 1e-6
 # a twist solve that stalled at the rounding floor above this scaled residual is a failed step
 TWIST_FAILED_ABOVE = 1e-3
 PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWITCH = (
@@ -658,11 +653,7 @@ def seed_history(h: float, node_count: Ints1, v: Vec3s2, history: Vec3s3, tensio
 def bending_stiffness_blocks(clamp: ti.template(), md: ModelArgs, st: StateArgs):
     """st.blocks[..., :3, :3] = the Gauss-Newton bending stiffness K of every strand [N/m]
     (implicit.py; free nodes only, blocks as in linalg.block_pentadiagonal_solve) at the
-    current frames; st.dx is
-    overwritten (scratch). One thread per strand."""
+    current frames; st.dx is overwritten (scratch). One thread per strand."""
     for s in range(st.x.shape[0]):
-        for i in range(md.node_count[s]):
-            st.dx[s, i] = vec3(0.0)
-            for b in ti.static(range(3)):
-                st.blocks[s, i, b] = mat4d(0.0)
+        clear_system(s, md.node_count[s], True, st)
         assemble_stiffness(s, clamp, 1.0, md, st)
