@@ -47,7 +47,7 @@ from .hair.interpolate import Interpolator
 from .world.motion import Jerk, Keyframes, Nod, Shake, Still, Turntable, compose
 from .hair.roots import sample_scalp, scalp_groom
 from .world.sdf import SignedDistanceGrid
-from .world.forces import HairInteraction
+from .world.forces import HairInteraction, StrandContact
 from .rods.materials import Material
 from .runtime import init
 from .hair.sagfree import SagFreeReport, sag_free
@@ -58,7 +58,7 @@ from .hair.usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_cur
 
 __all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
-           "HairInteraction", "Still", "Nod", "Shake", "Turntable", "Jerk", "Keyframes", "compose",
+           "HairInteraction", "StrandContact", "Still", "Nod", "Shake", "Turntable", "Jerk", "Keyframes", "compose",
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",
            "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
            "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",

@@ -272,7 +272,7 @@ def test_bad_pin_input_names_the_parameter():
     with pytest.raises(ValueError, match="pin_id"):
         sim.release_pin(pid)
     with pytest.raises(ValueError, match="root"):
-        th.Simulator(hanging(11, length=0.2), th.Material(), root="free")
+        th.Simulator(hanging(11, length=0.2), th.Material(), root="loose")
     pinned = th.Simulator(hanging(11, length=0.2), th.Material(), root="pinned")
     with pytest.raises(ValueError, match="node"):
         pinned.add_pin(0, 0)

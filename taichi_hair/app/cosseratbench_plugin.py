@@ -47,7 +47,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
 
-from cosseratbench.scenario import Cylinder, End, EndCondition, Plane, Rod, Scenario
+from cosseratbench.scenario import Cylinder, End, EndCondition, Motion, Plane, Rod, Scenario
 from cosseratbench.solver import Capability, Diverged
 from cosseratbench.trajectory import Trajectory
 
@@ -91,35 +91,71 @@ def _ensure_taichi() -> str:
     return runtime.precision()
 
 
+def _twist_only(motion: Motion, axis: np.ndarray) -> bool:
+    """Whether `motion` only turns its end about `axis` (no displacement): a clip can drive it."""
+    displacement = np.asarray(motion.displacement, dtype=float)
+    rotation = np.asarray(motion.rotation, dtype=float)
+    across = rotation - np.outer(rotation @ axis, axis)
+    return bool(np.all(np.abs(displacement) < 1e-12) and np.all(np.linalg.norm(across, axis=1) < 1e-9))
+
+
 class _Strand:
-    """One scenario rod as one strand: its nodes in simulation order and how ends map."""
+    """One scenario rod as one strand: its nodes in simulation order and how ends map.
+
+    The root is the end a head motion can carry: a held end, the driven one if its motion
+    displaces it; with both ends free the strand has a free root. The other end is the tip: free,
+    a pin (pinned), a twist-holding clip (clamped), turned in time if its motion only turns it
+    about its axis, and sliding if it slides along an axis."""
 
     def __init__(self, rod: Rod, n_elements: int):
         self.rod = rod
         if n_elements < 2:
             raise NotImplementedError("taichi_hair needs at least 2 elements per rod")
         start, end = rod.condition(End.START), rod.condition(End.END)
-        if start is EndCondition.FREE and end is EndCondition.FREE:
-            raise NotImplementedError("a rod with both ends free: every taichi_hair strand is "
-                                      "held at its root")
-        if rod.start_motion is not None and rod.end_motion is not None:
-            raise NotImplementedError("a rod driven at both ends: taichi_hair drives only the root")
-        # Simulate from the start unless only the end is held, or only the end is driven.
-        self.reversed = (start is EndCondition.FREE) or (rod.end_motion is not None)
+        nodes = rod.nodes(n_elements)
+        tangent = {End.START: nodes[1] - nodes[0], End.END: nodes[-1] - nodes[-2]}
+        self.axis = {}
+        for e in End:
+            motion = rod.motion(e)
+            if motion is not None:
+                self.axis[e] = (motion.axis if motion.slides_along is not None
+                                else tangent[e] / np.linalg.norm(tangent[e]))
+        turns = {e: rod.motion(e) is not None and _twist_only(rod.motion(e), self.axis[e]) for e in End}
+        self.free_root = start is EndCondition.FREE and end is EndCondition.FREE
+        if start is EndCondition.FREE or end is EndCondition.FREE:
+            self.reversed = start is EndCondition.FREE and not self.free_root
+        else:  # both held: the root is the end a head motion must carry
+            self.reversed = rod.end_motion is not None and not turns[End.END]
         self.root_end, self.tip_end = (End.END, End.START) if self.reversed else (End.START, End.END)
         self.motion = rod.motion(self.root_end)
-        for end in End:
-            motion = rod.motion(end)
-            if motion is not None and motion.slides_along is not None:
-                raise NotImplementedError("an end that slides freely along an axis: taichi_hair "
-                                          "holds or drives a clamped end completely")
-        nodes = rod.nodes(n_elements)
+        self.tip_motion = rod.motion(self.tip_end)
+        if self.motion is not None and self.motion.slides_along is not None:
+            raise NotImplementedError("a root that slides along an axis: taichi_hair's sliders are clips "
+                                      "on a strand's last edge")
+        if self.tip_motion is not None and not turns[self.tip_end]:
+            raise NotImplementedError("a rod driven at both ends, or a driven end that moves rather than "
+                                      "turns about its axis away from the root: taichi_hair drives one root "
+                                      "and turns clips")
+        if self.motion is not None and rod.motion(self.tip_end) is not None:
+            raise NotImplementedError("a rod driven at both ends: taichi_hair drives only the root")
         d1 = rod.directors(n_elements)
         if self.reversed:
             nodes, d1 = nodes[::-1].copy(), d1[::-1].copy()
         self.scenario_nodes = nodes
         self.d1_start = d1
         self.rest_nodes = _unstretched(nodes, rod.length)
+        # a clip turns about its own edge, which may point against the scenario's axis
+        edge = self.rest_nodes[-1] - self.rest_nodes[-2]
+        self.tip_sign = (float(np.sign(edge @ self.axis[self.tip_end])) if self.tip_motion is not None
+                         else 1.0)
+
+    def tip_angle(self, time: float) -> float:
+        """The tip clip's turn [rad] about its axis at `time` (0 when the tip is not driven)."""
+        motion = self.tip_motion
+        if motion is None:
+            return 0.0
+        along = np.asarray(motion.rotation, dtype=float) @ self.axis[self.tip_end]
+        return self.tip_sign * float(np.interp(time, motion.times, along))
 
     def to_scenario(self, values: np.ndarray) -> np.ndarray:
         """Per-node or per-element values [T, K, 3] back in the scenario's order."""
@@ -154,10 +190,10 @@ class TaichiHairSolver:
     name = "taichi_hair"
     backend_version = (f"taichi_hair {_version('taichi_hair')} (sources {_source_digest()}), "
                        f"taichi {_version('taichi')}")
-    # Inextensible and unshearable: no STRETCH, no SHEAR. No rod-rod or self contact
-    # (HairInteraction is a volumetric density/velocity model, rods still pass through each
-    # other), so neither ROD_CONTACT nor ROD_FRICTION. Obstacles: Plane and Capsule colliders.
-    capabilities = frozenset({Capability.CYLINDER_CONTACT, Capability.PLANE_CONTACT})
+    # Inextensible and unshearable: no STRETCH, no SHEAR. Rod-rod and self contact with Coulomb
+    # friction: StrandContact. Obstacles: Plane and Capsule colliders.
+    capabilities = frozenset({Capability.CYLINDER_CONTACT, Capability.PLANE_CONTACT,
+                              Capability.ROD_CONTACT, Capability.ROD_FRICTION})
 
     integrator = "explicit"
     IMPLICIT_DT = 1e-3  # the implicit step's default dt [s] (Simulator's), at most
@@ -207,6 +243,9 @@ class TaichiHairSolver:
             "drag": self._drag(scenario),
             "damping_rate": 2.0 * scenario.slowest_frequency() if scenario.quasi_static else 0.0,
             "contact": "position-based, margin = rod radius" if scenario.obstacles else "none",
+            "rod_contact": ("position-based segment-segment, radius = rod radius, "
+                            f"self_contact={scenario.self_contact}"
+                            if len(scenario.rods) > 1 or scenario.self_contact else "none"),
         }
 
     # ---- build and run -------------------------------------------------------------------
@@ -218,17 +257,22 @@ class TaichiHairSolver:
         strands = [_Strand(rod, n_elements) for rod in scenario.rods]
         roots = {s.rod.condition(s.root_end) for s in strands}
         if len(roots) > 1:
-            raise NotImplementedError("rods held differently at their roots (clamped and pinned "
+            raise NotImplementedError("rods held differently at their roots (clamped, pinned or free "
                                       "in one scenario): taichi_hair's root condition is per simulator")
-        pinned_root = roots == {EndCondition.PINNED}
-        needs_pins = pinned_root or any(s.rod.condition(s.tip_end) is not EndCondition.FREE
-                                        for s in strands)
-        if needs_pins and not hasattr(th.Simulator, "add_pin"):
-            raise NotImplementedError("a pinned root or a held tip needs Simulator.add_pin "
-                                      "(not in this taichi_hair)")
-        if any(s.rod.condition(s.tip_end) is EndCondition.CLAMPED for s in strands):
-            raise NotImplementedError("a clamped tip: taichi_hair's clip (add_pin clamp=True) holds "
-                                      "the edge's position and direction but leaves its twist free")
+        root = {EndCondition.CLAMPED: "clamped", EndCondition.PINNED: "pinned",
+                EndCondition.FREE: "free"}[roots.pop()]
+        needs_pins = root == "pinned" or any(s.rod.condition(s.tip_end) is not EndCondition.FREE
+                                             for s in strands)
+        if needs_pins and not hasattr(th.Simulator, "turn_pin"):
+            raise NotImplementedError("a pinned root or a held tip needs Simulator.add_pin with "
+                                      "twist-holding clips (not in this taichi_hair)")
+        if self.integrator == "implicit" and (root == "free" or any(
+                s.rod.condition(s.tip_end) is EndCondition.CLAMPED for s in strands)):
+            raise NotImplementedError("a free rod or a clamped tip: the implicit step needs a held "
+                                      "root and has no twist-holding clips")
+        contact = len(strands) > 1 or scenario.self_contact
+        if contact and self.integrator == "implicit":
+            raise NotImplementedError("rod-rod contact: the implicit step has none")
         motions = [s for s in strands if s.motion is not None]
         if motions and len(strands) > 1:
             raise NotImplementedError("a driven end with several rods: taichi_hair's head motion "
@@ -246,10 +290,11 @@ class TaichiHairSolver:
                        twist="quasistatic", colliders=colliders,
                        stability_factor=self.stability_factor,
                        max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
-                       integrator=self.integrator,
+                       integrator=self.integrator, root=root,
                        root_motion=_motion_callable(motions[0]) if motions else None)
-        if pinned_root:
-            options["root"] = "pinned"
+        if contact:
+            options["strand_contact"] = th.StrandContact(
+                friction=max(r.friction for r in scenario.rods), self_contact=scenario.self_contact)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
             sim = th.Simulator(groom, materials, **options)
@@ -258,6 +303,10 @@ class TaichiHairSolver:
             last = len(s.rest_nodes) - 1
             if condition is EndCondition.PINNED:
                 sim.add_pin(k, last, s.scenario_nodes[-1])
+            elif condition is EndCondition.CLAMPED:  # a clip holding the edge's frame, maybe sliding
+                slides = s.tip_motion is not None and s.tip_motion.slides_along is not None
+                s.clip = sim.add_pin(k, last - 1, clamp=True, hold_twist=True,
+                                     slide=tuple(s.axis[s.tip_end]) if slides else False)
         loads = np.zeros((groom.n_strands, groom.max_nodes, 3))
         for k, s in enumerate(strands):
             for load in s.rod.loads:
@@ -306,13 +355,16 @@ class TaichiHairSolver:
                 directors[k].append(d1 / np.linalg.norm(d1, axis=1, keepdims=True))
 
         record()  # t = 0: the strand as it starts (a pre-stretched rod at its unstretched length)
+        times = np.linspace(0.0, scenario.duration, n_frames)
+        turned = [s for s in strands if s.tip_motion is not None]
         try:
-            for _ in range(n_frames - 1):
+            for frame in range(1, n_frames):
+                for s in turned:  # a driven clip reaches the frame's angle over the frame
+                    sim.turn_pin(s.clip, s.tip_angle(times[frame]))
                 sim.step(steps)
                 record()
         except th.SimulationDiverged as error:
             raise Diverged(f"taichi_hair: {error}", time=sim.time) from error
-        times = np.linspace(0.0, scenario.duration, n_frames)
         return Trajectory(times,
                           tuple(s.to_scenario(np.stack(p)) for s, p in zip(strands, positions)),
                           tuple(s.to_scenario(np.stack(d)) for s, d in zip(strands, directors)))

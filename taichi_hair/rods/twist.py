@@ -24,7 +24,7 @@ Two modes (docs/model.md, "Twist"):
 
 import taichi as ti
 
-from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2
+from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec3s3, Vec4s1, Vec4s2, vec2
 from .frames import material_directors
 from .linalg import back_substitute
 from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
@@ -36,6 +36,9 @@ PI = 3.141592653589793
 MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
 ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver
 MAX_HALVINGS = 40
+# a free root's gauge: relative damping of edge 0's Newton diagonal (a round strand's energy does
+# not change when every angle turns together, so its Hessian is singular along that turn)
+GAUGE_DAMPING = 1e-6
 # how a quasistatic solve ended: callers count stalls and refuse caps
 CONVERGED, STALLED, CAPPED = 0, 1, 2
 
@@ -85,16 +88,30 @@ def theta_energy(s, n, first, bishop_u: ti.template(), bishop_v: ti.template(), 
 
 
 @ti.func
-def assemble_newton(s, n, first, clamp_bending, bishop_u: ti.template(), bishop_v: ti.template(),
+def edge_twist_held(s, j, clips: ti.template(), clip: ti.template()):
+    """1 if edge j of strand s is held by a clip that holds twist (clip[s, j, 1].z > 0), else 0."""
+    held = 0
+    if ti.static(clips):
+        if clip[s, j, 1].z > 0.0:
+            held = 1
+    return held
+
+
+@ti.func
+def assemble_newton(s, n, first, lo, clamp_bending, bishop_u: ti.template(), bishop_v: ti.template(),
                     kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                     rest_twist: ti.template(), voronoi: ti.template(), k, grad: ti.template(),
-                    diag: ti.template(), upper: ti.template()):
-    """Gradient and tridiagonal Hessian of theta_energy on the free edges first..n-2 (the first
-    free edge is the first bending node); clamp_bending = 1 clamps the bending diagonal at 0. Returns the
-    scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span."""
+                    diag: ti.template(), upper: ti.template(), clips: ti.template(), clip: ti.template()):
+    """Gradient and tridiagonal Hessian of theta_energy on the free edges lo..n-2 (first: the
+    first node that bends and twists; lo = first, or 0 for a free root, whose edge 0 is free too
+    and whose Hessian is singular along a uniform turn of a round strand: GAUGE_DAMPING on edge
+    0's diagonal fixes that gauge without biasing the minimum); clamp_bending = 1 clamps the
+    bending diagonal at 0. An edge whose twist a clip holds is not free: its row is the identity
+    with zero gradient. Returns the scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the
+    edge's Voronoi span."""
     scale = ti.max(k.x, k.z)
     res = 0.0
-    for j in range(first, n - 1):
+    for j in range(lo, n - 1):
         _, gb, hb = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
                                           rest_kappa, voronoi, k)
         gt, ht = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
@@ -102,11 +119,20 @@ def assemble_newton(s, n, first, clamp_bending, bishop_u: ti.template(), bishop_
             hb = ti.max(hb, 0.0)
         grad[s, j] = gb + gt
         diag[s, j] = hb + ht
+        if j < first:  # a free root's edge 0
+            diag[s, j] += GAUGE_DAMPING * ht
         upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
         span = 0.5 * voronoi[s, j + 1]
         if j >= first:
             span += 0.5 * voronoi[s, j]
-        res = ti.max(res, ti.abs(gb + gt) * span / scale)
+        if edge_twist_held(s, j, clips, clip):
+            grad[s, j] = 0.0
+            diag[s, j] = 1.0
+            upper[s, j] = 0.0
+            if j > lo:
+                upper[s, j - 1] = 0.0
+        else:
+            res = ti.max(res, ti.abs(gb + gt) * span / scale)
     return res
 
 
@@ -132,14 +158,14 @@ def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.temp
 
 
 @ti.func
-def line_search(s, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.template(),
+def line_search(s, first, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.template(),
                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                 rest_twist: ti.template(), voronoi: ti.template(), k, step: ti.template()):
     """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
     at pi/2) that decreases the energy by ARMIJO alpha decrement, or that changes it by less than
     its rounding when the predicted decrease is below it. Returns the accepted alpha times the
     largest |step| [rad] (0: no step found, theta unchanged)."""
-    n = hi + 2  # lo is both the first free edge and the first bending node
+    n = hi + 2
     largest = 0.0
     for j in range(lo, hi + 1):
         largest = ti.max(largest, ti.abs(step[s, j]))
@@ -153,7 +179,7 @@ def line_search(s, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.
         for j in range(lo, hi + 1):
             theta[s, j] -= (alpha - applied) * step[s, j]
         applied = alpha
-        e1 = theta_energy(s, n, lo, bishop_u, bishop_v, kb, theta, rest_kappa,
+        e1 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
                           rest_twist, voronoi, k)
         predicted = alpha * decrement
         if e1 <= e0 - ARMIJO * predicted or (predicted <= slack and e1 <= e0 + slack):
@@ -167,23 +193,26 @@ def line_search(s, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.
 
 
 @ti.func
-def strand_twist_quasistatic(s, clamp: ti.template(), node_count: ti.template(),
+def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), node_count: ti.template(),
                              bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
                              theta: ti.template(), rest_kappa: ti.template(),
                              rest_twist: ti.template(), voronoi: ti.template(),
                              stiffness: ti.template(), tol, max_iterations, grad: ti.template(),
-                             diag: ti.template(), upper: ti.template()):
-    """Newton with line search on strand s's free angles (see the module doc). Returns
+                             diag: ti.template(), upper: ti.template(), clips: ti.template(),
+                             clip: ti.template()):
+    """Newton with line search on strand s's free angles (see the module doc; free_root: edge 0
+    is free too; clips: edges held by twist-holding clips keep their angles). Returns
     (iterations, scaled residual when it stopped, CONVERGED / STALLED / CAPPED)."""
     n = node_count[s]
     k = stiffness[s]
     first = ti.static(first_node(clamp))
+    lo = ti.static(0 if free_root else first_node(clamp))
     it = 0
     res = 0.0
     status = CONVERGED
     while True:
-        res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
-                              rest_twist, voronoi, k, grad, diag, upper)
+        res = assemble_newton(s, n, first, lo, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                              rest_twist, voronoi, k, grad, diag, upper, clips, clip)
         if res < tol:
             break
         if it >= max_iterations:
@@ -191,21 +220,21 @@ def strand_twist_quasistatic(s, clamp: ti.template(), node_count: ti.template(),
             break
         e0 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
                           voronoi, k)
-        positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
+        positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
         if not positive:  # indefinite: a descent direction from the clamped bending diagonal
-            assemble_newton(s, n, first, 1, bishop_u, bishop_v, kb, theta, rest_kappa,
-                            rest_twist, voronoi, k, grad, diag, upper)
-            positive, decrement = ldl_solve(s, first, n - 2, diag, upper, grad)
-        moved = line_search(s, first, n - 2, e0, decrement, bishop_u, bishop_v, kb, theta,
+            assemble_newton(s, n, first, lo, 1, bishop_u, bishop_v, kb, theta, rest_kappa,
+                            rest_twist, voronoi, k, grad, diag, upper, clips, clip)
+            positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
+        moved = line_search(s, first, lo, n - 2, e0, decrement, bishop_u, bishop_v, kb, theta,
                             rest_kappa, rest_twist, voronoi, k, grad)
         it += 1
         largest_angle = 0.0
-        for j in range(first, n - 1):
+        for j in range(lo, n - 1):
             largest_angle = ti.max(largest_angle, ti.abs(theta[s, j]))
         if moved <= 4.0 * ti.static(rounding_epsilon()) * (1.0 + largest_angle):
             # nothing representable is left to gain: the rounding floor of this precision
-            res = assemble_newton(s, n, first, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                  rest_twist, voronoi, k, grad, diag, upper)
+            res = assemble_newton(s, n, first, lo, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                  rest_twist, voronoi, k, grad, diag, upper, clips, clip)
             if res >= tol:
                 status = STALLED
             break
@@ -332,3 +361,40 @@ def kmoch_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: V
     for s in range(x.shape[0]):
         strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
                             rest_kappa, rest_twist, voronoi, stiffness, force)
+
+
+@ti.func
+def strand_held_twist_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+                             bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
+                             theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
+                             rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
+                             clip: ti.template(), force: ti.template()):
+    """force[s] += g_c grad Psi^c for every edge c whose material frame a clip holds in space
+    (clip[s, c, 1].z > 0; docs/model.md, "Clips that hold twist"). Its angle from the Bishop frame
+    is theta^c = alpha_c - Psi^c(x), alpha_c the clip's fixed angle and Psi^c = sum_{k<=c} psi_k
+    the Bishop frame's turn from the root to edge c, so E(x) = E(x, theta^c(x)) has the extra
+    gradient dE/dtheta^c (-grad Psi^c) on top of the fixed-angle gradient that elastic_forces
+    computes: writhe traded for twist, which is what buckles a twisted rod. g_c = dE/dtheta^c
+    [J/rad] (bending and twist)."""
+    n = node_count[s]
+    k = stiffness[s]
+    first = ti.static(first_node(clamp))
+    for c in range(first, n - 1):
+        if clip[s, c, 1].z > 0.0:
+            _, gb, _ = edge_bend_theta_terms(s, c, n, first, theta[s, c], bishop_u, bishop_v, kb,
+                                             rest_kappa, voronoi, k)
+            gt, _ = twist_terms(s, c, n, first, theta, rest_twist, voronoi, k.z)
+            for i in range(first, c + 1):
+                e0, e1 = node_edges(s, i, x, root_t)
+                add_holonomy_gradient(s, i, e0, e1, kb[s, i], gb + gt, force)
+
+
+@ti.kernel
+def held_twist_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: Vec3s2,
+                      bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
+                      rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
+                      clip: Vec3s3, force: Vec3s2):
+    """strand_held_twist_forces for every strand (added to force [S, N] N). One thread per strand."""
+    for s in range(x.shape[0]):
+        strand_held_twist_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+                                 rest_kappa, rest_twist, voronoi, stiffness, clip, force)

@@ -5,7 +5,13 @@ projection cannot move it, contacts and hair-hair interaction skip it, and after
 update it is put at its target, exactly as the root node is put on the head. A clip
 (clamp=True) pins the edge (node, node + 1): both nodes, the second at the first's target plus
 the edge vector the edge had when it was clipped (position and direction held; the edge's
-material angle is not: the twist solve still treats it as free).
+material angle is not, unless the clip holds twist too: hold_twist=True keeps the edge's
+material frame at the clip's director, turned about the edge by an angle that `turn_pin` drives
+in time, and the twist solve treats that edge as held; docs/model.md, "Clips that hold twist").
+A slider (slide=True) is a clip on a strand's last edge that is free to move along the edge's
+direction at clip time: its two nodes move together along that axis under the forces on them
+and the pull of the strand (the projection gives the pair the anisotropic inverse mass
+a a^T / (m_c + m_c+1)), and are held across it.
 
 Decisions (see also `Simulator.add_pin`):
 - Targets move linearly in time over the next `Simulator.step(n)` call: a target set by
@@ -24,40 +30,79 @@ Decisions (see also `Simulator.add_pin`):
 
 Device data, [S, N] per node: pin_mode (0 free, 1 world target, 2 head target), pin_start and
 pin_end [m] (the targets at the start and end of the current step call, world or head
-coordinates by mode). They are Taichi ndarrays: adding or releasing pins never recompiles.
+coordinates by mode), clip [S, N, 3] vec3 on a clip's first node c: [0] the held director d1 at
+angle 0 (world or head coordinates, perpendicular to the edge), [1] (angle at the start and end
+of the step call [rad], 1 if the clip holds twist else 0), [2] on both nodes of a slider
+a / sqrt(m_c + m_c+1) (a the unit slide axis; zero elsewhere). They are Taichi ndarrays: adding
+or releasing pins never recompiles.
 """
 
 import numpy as np
 import taichi as ti
 
 from ..rods import arrays
-from .collisions import from_head
+from .collisions import from_head, head_rotate
 from ..rods.frames import parallel_transport
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
-ROOT_MODES = ("clamped", "pinned", "edge")
+# "free": no node held, node 0 has its mass (a loose strand, or one held only by pins)
+ROOT_MODES = ("clamped", "pinned", "edge", "free")
 # With pins a stretch of strand can be held at both ends; taut and straight, its projection
 # system is singular (more length constraints than the free nodes can move along the line).
 # Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;
 # it slows the linear convergence only by a factor HELD_DAMPING per iteration. The implicit
 # step damps its length rows by the same amount.
 HELD_DAMPING = 1e-6
+PI = 3.141592653589793
 
 
 @ti.func
-def strand_place_pins(s, fraction, node_count: ti.template(), pin_mode: ti.template(),
-                      pin_start: ti.template(), pin_end: ti.template(), head: ti.template(), now,
-                      x: ti.template()):
+def strand_place_pins(s, fraction, clips: ti.template(), node_count: ti.template(), pin_mode: ti.template(),
+                      pin_start: ti.template(), pin_end: ti.template(), clip: ti.template(),
+                      head: ti.template(), now, x: ti.template()):
     """Put strand s's pinned nodes at their targets `fraction` of the way from start to end
-    (head targets carried by head pose `now`)."""
+    (head targets carried by head pose `now`); a slider's nodes keep their place along its axis."""
     for i in range(node_count[s]):
         mode = pin_mode[s, i]
         if mode != FREE:
             p = pin_start[s, i] + fraction * (pin_end[s, i] - pin_start[s, i])
             if mode == HEAD:
                 p = from_head(head, now, p)
+            if ti.static(clips):
+                b = clip[s, i, 2]
+                if b.dot(b) > 0.0:
+                    p += b * (b.dot(x[s, i] - p) / b.dot(b))
             x[s, i] = p
+
+
+@ti.func
+def clip_fraction_angle(clip: ti.template(), s, c, fraction):
+    """The angle [rad] of the clip whose first node is c, `fraction` of the way through the call."""
+    a = clip[s, c, 1]
+    return a.x + fraction * (a.y - a.x)
+
+
+@ti.func
+def strand_hold_clip_twist(s, fraction, node_count: ti.template(), pin_mode: ti.template(),
+                           clip: ti.template(), head: ti.template(), now, bishop_u: ti.template(),
+                           bishop_v: ti.template(), theta: ti.template()):
+    """theta of every edge a twist-holding clip holds: the angle of the clip's director (turned
+    by its drive angle about the edge) in the edge's Bishop frame, on the branch nearest the
+    edge's previous angle (so a clip turned through 2 pi twists the strand through 2 pi)."""
+    for c in range(node_count[s] - 1):
+        if clip[s, c, 1].z > 0.0:
+            d = clip[s, c, 0]
+            if pin_mode[s, c] == HEAD:
+                d = head_rotate(head, now, d)
+            u = bishop_u[s, c]
+            v = bishop_v[s, c]
+            t = u.cross(v)  # the edge's tangent (v = t x u)
+            d = (d - d.dot(t) * t).normalized()
+            phi = clip_fraction_angle(clip, s, c, fraction)
+            d = d * ti.cos(phi) + t.cross(d) * ti.sin(phi)
+            angle = ti.atan2(d.dot(v), d.dot(u))
+            theta[s, c] = angle + 2.0 * PI * ti.round((theta[s, c] - angle) / (2.0 * PI))
 
 
 @ti.func
@@ -104,7 +149,7 @@ class PinTable:
     def __init__(self, model, root: str):
         self.model = model
         self.node_counts = np.asarray(model.groom.node_counts)
-        self.first_free = 2 if root == "edge" else 1  # the nodes riding on the head
+        self.first_free = {"edge": 2, "free": 0}.get(root, 1)  # the nodes riding on the head
         self.free_inv = model.inv_mass.to_numpy().astype(np.float64)
         self.free_inv_mass = arrays.scalars(self.free_inv.shape, self.free_inv)
         self.inv = self.free_inv.copy()  # host copy of model.inv_mass with the pins in
@@ -113,6 +158,8 @@ class PinTable:
         self.mode = np.zeros(shape, dtype=np.int32)
         self.start = np.zeros(shape + (3,))
         self.end = np.zeros(shape + (3,))
+        self.clip = np.zeros(shape + (3, 3))
+        self.root = root
         self.records = {}
         self.next_id = 0
         self.device = None  # (mode, start, end) ndarrays once a pin was added
@@ -122,15 +169,41 @@ class PinTable:
     def active(self) -> bool:
         return bool(self.records)
 
+    @property
+    def clips(self) -> bool:
+        """Whether a clip holds twist or slides (the step compiles their stages only then)."""
+        return any(r["hold_twist"] or r["slide"] for r in self.records.values())
+
     # ---- edits ----------------------------------------------------------------------
-    def add(self, strands, nodes, targets, clamp, attach, positions, head):
+    def add(self, strands, nodes, targets, clamp, attach, positions, head, hold_twist=False,
+            slide=False, directors=None):
         """Validate everything, then add the pins; returns their ids [K]. positions: world
-        node positions [S, N, 3]; head: (R, t), the pose those positions belong to."""
+        node positions [S, N, 3]; head: (R, t), the pose those positions belong to; directors:
+        the material directors m1 [S, N-1, 3] (the director a twist-holding clip holds)."""
         if attach not in ATTACH:
             raise ValueError(f"attach must be 'world' or 'head', got {attach!r}")
-        if not isinstance(clamp, (bool, np.bool_)):
-            raise ValueError(f"clamp must be True or False, got {clamp!r}")
+        for name, value in (("clamp", clamp), ("hold_twist", hold_twist)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {value!r}")
+        axis = None  # the slide axis: None (the clipped edge's direction) or a unit 3-vector
+        if not isinstance(slide, (bool, np.bool_)):
+            axis = np.asarray(slide, dtype=np.float64) if np.ndim(slide) == 1 else None
+            if axis is None or axis.shape != (3,) or not np.all(np.isfinite(axis)) \
+                    or np.linalg.norm(axis) == 0:
+                raise ValueError(f"slide must be True, False or a nonzero 3-vector (the slide axis), "
+                                 f"got {slide!r}")
+            axis = axis / np.linalg.norm(axis)
+            slide = True
+        if (hold_twist or slide) and not clamp:
+            raise ValueError("hold_twist and slide need clamp=True: they hold an edge, not a node")
+        if slide and attach != "world":
+            raise ValueError("a slider (slide=True) slides along a world axis: attach must be 'world'")
         held = self._checked_nodes(strands, nodes, bool(clamp))
+        if slide:
+            for s, i in held:
+                if i != self.node_counts[s] - 2:
+                    raise ValueError(f"a slider must clip strand {s}'s last edge: node must be "
+                                     f"{self.node_counts[s] - 2} (or -2), got {i}")
         count = len(held)
         rotation, translation = head
         here = positions[[s for s, _ in held], [i for _, i in held]]
@@ -146,11 +219,20 @@ class PinTable:
             pid = self.next_id
             self.next_id += 1
             self.records[pid] = {"strand": s, "node": i, "clamp": bool(clamp), "attach": attach,
-                                 "target": target[k].copy(), "offset": offset}
+                                 "target": target[k].copy(), "offset": offset,
+                                 "hold_twist": bool(hold_twist), "slide": bool(slide), "angle": 0.0}
             for node in (i, i + 1) if clamp else (i,):
                 self.owner[s, node] = pid
                 self.mode[s, node] = ATTACH[attach]
                 self.inv[s, node] = 0.0
+            if hold_twist:
+                d = np.asarray(directors[s, i], dtype=np.float64)
+                self.clip[s, i, 0] = rotation.T @ d if attach == "head" else d
+                self.clip[s, i, 1] = (0.0, 0.0, 1.0)
+            if slide:
+                a = offset / np.linalg.norm(offset) if axis is None else axis
+                mass = 1.0 / self.free_inv[s, i] + 1.0 / self.free_inv[s, i + 1]
+                self.clip[s, i, 2] = self.clip[s, i + 1, 2] = a / np.sqrt(mass)
             self._write(pid, target[k], both=True)
             ids.append(pid)
         self.dirty = True
@@ -194,10 +276,27 @@ class PinTable:
             self._write(pid, target[k], both=False)
         self.dirty = True
 
+    def turn(self, pin_ids, angles):
+        """New drive angles [rad] of twist-holding clips, reached at the end of the next step call."""
+        ids = self._known(pin_ids)
+        angles = np.broadcast_to(np.asarray(angles, dtype=np.float64), (len(ids),))
+        if not np.all(np.isfinite(angles)):
+            raise ValueError(f"angle must be finite radians, got {angles!r}")
+        for pid, angle in zip(ids, angles):
+            r = self.records[pid]
+            if not r["hold_twist"]:
+                raise ValueError(f"pin {pid} does not hold twist: add it with clamp=True, hold_twist=True")
+            r["angle"] = float(angle)
+            self.clip[r["strand"], r["node"], 1, 1] = float(angle)
+        self.dirty = True
+
     def release(self, pin_ids):
         for pid in self._known(pin_ids):
             r = self.records.pop(pid)
             s, i = r["strand"], r["node"]
+            self.clip[s, i] = 0.0
+            if r["clamp"]:
+                self.clip[s, i + 1, 2] = 0.0
             for node in (i, i + 1) if r["clamp"] else (i,):
                 self.owner[s, node] = -1
                 self.mode[s, node] = FREE
@@ -229,7 +328,8 @@ class PinTable:
 
     def listing(self) -> list[dict]:
         return [{"id": pid, "strand": r["strand"], "node": r["node"], "target": r["target"].copy(),
-                 "clamp": r["clamp"], "attach": r["attach"]} for pid, r in sorted(self.records.items())]
+                 "clamp": r["clamp"], "attach": r["attach"], "hold_twist": r["hold_twist"],
+                 "slide": r["slide"], "angle": r["angle"]} for pid, r in sorted(self.records.items())]
 
     # ---- device side ----------------------------------------------------------------
     def upload(self):
@@ -239,10 +339,12 @@ class PinTable:
         f = arrays.np_float()
         if self.device is None:
             shape = self.mode.shape
-            self.device = (arrays.ints(shape, 0), arrays.vectors(3, shape), arrays.vectors(3, shape))
+            self.device = (arrays.ints(shape, 0), arrays.vectors(3, shape), arrays.vectors(3, shape),
+                           arrays.vectors(3, shape + (3,)))
         self.device[0].from_numpy(self.mode)
         self.device[1].from_numpy(self.start.astype(f))
         self.device[2].from_numpy(self.end.astype(f))
+        self.device[3].from_numpy(self.clip.astype(f))
         self.model.inv_mass.from_numpy(self.inv.astype(f))
         self.dirty = False
 
@@ -250,4 +352,7 @@ class PinTable:
         """After a completed step call: the targets reached become the next call's start."""
         if self.active and not np.array_equal(self.start, self.end):
             self.start[...] = self.end
+            self.dirty = True
+        if self.active and not np.array_equal(self.clip[..., 1, 0], self.clip[..., 1, 1]):
+            self.clip[..., 1, 0] = self.clip[..., 1, 1]
             self.dirty = True

@@ -20,6 +20,7 @@ from ..world.scene import _host_distance, check_common_inputs
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
+from .strand_contact import contact_grid, resolve_strand_contacts
 from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
@@ -66,6 +67,9 @@ class Simulator:
         `set_root_transform`.
     colliders: Sphere / Ellipsoid / Capsule / Plane / MeshCollider shapes hair stays out of.
     touch: Hand (moving sphere) and Grab tools. hair_interaction: a HairInteraction or None.
+    strand_contact: a StrandContact or None: strands (and, with self_contact, a strand and
+        itself) kept apart by the sum of their contact radii, resolved after the projection by
+        contact passes alternating with it (solver/strand_contact.py; explicit integrator).
     max_speed [m/s]: a node faster than this counts as a blow-up.
     max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
         bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
@@ -77,7 +81,12 @@ class Simulator:
         twist solve keeps it fixed), so the joint is free in bending and holds spin about the
         edge: a universal joint, not a ball joint), or "edge" (the first edge rides rigidly on
         the head and bending starts at node 1: the strand bends like one half an edge shorter,
-        a first-order error; the model before the clamp moved to the root node, kept to compare).
+        a first-order error; the model before the clamp moved to the root node, kept to compare),
+        or "free" (no node is held: a loose strand, or one held only by pins and clips; node 0
+        has its mass, the root edge's reference is carried in time as a pinned root's, and every
+        material angle is free in the twist solve, the gauge of a round strand fixed by a
+        damped Newton diagonal rather than by holding an edge; under twist="kmoch" elliptic
+        strands keep theta^0 as a pinned root does). The implicit integrator needs a held root.
     integrator: "explicit" (default: symplectic Euler, substepped past the stability bound) or
         "implicit" (linearised BDF2 with the bending stiffness solved per strand, docs/model.md
         "The implicit step": stable at any dt, no substeps; the stability bound, substeps,
@@ -92,15 +101,18 @@ class Simulator:
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
-                 integrator: str = "explicit"):
+                 integrator: str = "explicit", strand_contact=None):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                         wind, colliders, touch, hair_interaction, gravity, integrator)
+                         wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
         self.twist_iterations = twist_iterations
         twist_tol = None if twist_tol is None else _positive("twist_tol", twist_tol, "")
+        if root == "free" and integrator == "implicit":
+            raise ValueError("integrator='implicit' needs a held root (root='clamped', 'pinned' or "
+                             "'edge'); a free root (root='free') runs with integrator='explicit'")
         self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
                               twist_iterations=twist_iterations, integrator=integrator)
         self.integrator = integrator
@@ -154,6 +166,9 @@ class Simulator:
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
+        self.strand_contact = strand_contact
+        self._contact_grid = None if strand_contact is None else contact_grid(strand_contact, self.model)
+        self._contact_depth = 0.0  # the largest depth a last contact pass found, since the stats reset
 
     @classmethod
     def from_scene(cls, scene, dt: float = 1e-3, **options) -> "Simulator":
@@ -183,7 +198,7 @@ class Simulator:
         (reference=True forces it, for the initial pose)."""
         load_poses(self.control, np.stack([pose_rows(*self._head_prev), pose_rows(*self._head)]))
         st, md = self.state, self.model
-        if reference or (reference is None and not self.plan.pinned_root):
+        if reference or (reference is None and not self.plan.carried_root_frame):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
 
     def _colliders_holding_roots(self, colliders) -> list[tuple[int, int]]:
@@ -260,7 +275,8 @@ class Simulator:
         self.update_frames()
 
     # ---- pins and clips (taichi_hair/solver/pins.py) -----------------------------------------
-    def add_pin(self, strand, node, target=None, *, clamp: bool = False, attach: str = "world"):
+    def add_pin(self, strand, node, target=None, *, clamp: bool = False, attach: str = "world",
+                hold_twist: bool = False, slide=False):
         """Pin node `node` of strand `strand` to a point (position only; node -1 is the tip).
         target [3] m: default the node's current position (no jump); in world coordinates
         (attach="world") or head coordinates (attach="head": the pin rides on the head's rigid
@@ -268,8 +284,19 @@ class Simulator:
         target the node's position, the edge keeping its current direction (in the world or on
         the head). Returns the pin's int id. Bulk: strand and node as 1-D sequences of K (node
         may be one int for all) and target None or [K, 3] add K pins at once and return an int64
-        array of K ids. Held already (root nodes, other pins) or out of range: ValueError."""
-        ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev)
+        array of K ids. Held already (root nodes, other pins) or out of range: ValueError.
+        hold_twist=True (with clamp): the clip holds the edge's material frame too, at its current
+        m1, turned about the edge by `turn_pin` (twist="quasistatic" only; explicit integrator).
+        slide=True or an axis [3] (with clamp, on the strand's last edge, attach="world"): the
+        clip's two nodes move together along the edge's current direction (or the axis) under
+        the forces on them and the strand's pull, held across it (explicit integrator)."""
+        if (hold_twist or slide is not False) and self.integrator == "implicit":
+            raise ValueError("hold_twist and slide clips run with integrator='explicit'")
+        if hold_twist and self.twist != "quasistatic":
+            raise ValueError(f"hold_twist needs twist='quasistatic' (the solve that holds an edge's "
+                             f"angle), got twist={self.twist!r}")
+        ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev,
+                             hold_twist=hold_twist, slide=slide, directors=self.frames()["m1"])
         return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
 
     def move_pin(self, pin_id, target) -> None:
@@ -277,6 +304,12 @@ class Simulator:
         gets there at the end of the next `step` call, moving linearly in time over it. Bulk:
         pin_id a sequence of K ids and target [K, 3]."""
         self._pins.move(pin_id, target)
+
+    def turn_pin(self, pin_id, angle) -> None:
+        """Turn a twist-holding clip to `angle` [rad] about its edge (right-handed, from where it
+        was clipped; cumulative, so 2 pi is a full turn): reached at the end of the next `step`
+        call, turning linearly in time over it. Bulk: pin_id a sequence of K ids, angle [K]."""
+        self._pins.turn(pin_id, angle)
 
     def release_pin(self, pin_id) -> None:
         """Free the pin's node(s) from the next step on; they keep their last step's velocity.
@@ -305,17 +338,18 @@ class Simulator:
             seed_history(h, self.model.node_count, st.v, st.history, st.tension)
             self._history_h = h
         remaining = total = n * self.substeps
-        staged = timers is not None or self.interaction is not None
+        staged = timers is not None or self.interaction is not None or self.strand_contact is not None
         while remaining > 0:
             count = 1 if staged else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
             self.control.time = self.time
             # pins move linearly over the whole call (pins.py)
-            pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total)
+            pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
             if staged:
                 kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
-                           self.interaction.stage if self.interaction is not None else None, pins)
+                           self.interaction.stage if self.interaction is not None else None, pins,
+                           self._strand_contact_stage if self.strand_contact is not None else None)
             else:
                 advance(self._bundles, self.plan, self.control, h, count, moving, pins)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
@@ -326,6 +360,18 @@ class Simulator:
             remaining -= count
         self.steps_taken += n
         self._pins.settle()
+
+    def _strand_contact_stage(self, project):
+        depth = resolve_strand_contacts(self._contact_grid, self.strand_contact, self.model, self.state,
+                                        project)
+        self._contact_depth = max(self._contact_depth, depth)
+
+    def strand_contact_depth(self) -> float:
+        """The deepest strand-strand overlap [m] at the current positions (0 without
+        strand_contact): r_a + r_b minus the distance of the closest segment pair that may touch."""
+        if self._contact_grid is None:
+            return 0.0
+        return self._contact_grid.max_penetration(self.state.x, self.model.inv_mass)
 
     def _load_launch(self, h, count) -> bool:
         """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
@@ -428,7 +474,9 @@ class Simulator:
         projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
         an iteration removed under 10 % of a residual already below projection_stall_below,
         1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
-        lengths in any precision), and the twist solve's iterations and residual."""
+        lengths in any precision), the twist solve's iterations and residual, and with
+        strand_contact the deepest overlap [m] a step's last contact pass found
+        (strand_contact_depth_max)."""
         counters = self.state.counters.to_numpy()
         residuals = self.state.residuals.to_numpy()
         report = {
@@ -450,8 +498,11 @@ class Simulator:
             report["twist_stalls"] = int(counters[:, COUNTERS["twist_stalls"]].sum())
         if self.twist == "kmoch":
             report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
+        if self.strand_contact is not None:
+            report["strand_contact_depth_max"] = self._contact_depth
         if reset:
             self._reset_counters()
+            self._contact_depth = 0.0
         return report
 
     def _reset_counters(self):
@@ -496,8 +547,16 @@ class Simulator:
         self.rods.update_frames()
 
     def update_twist(self) -> dict:
-        """Solve the free edges' material angles with the chosen twist mode (RodSystem.update_twist)."""
-        return self.rods.update_twist()
+        """Solve the free edges' material angles with the chosen twist mode (RodSystem.update_twist);
+        edges held by twist-holding clips take the clips' latest angles."""
+        return self.rods.update_twist(self._clip_arrays())
+
+    def _clip_arrays(self):
+        """The pin table's device arrays when clips hold twist, else None."""
+        if not self._pins.clips:
+            return None
+        self._pins.upload()
+        return self._pins.device
 
     def strand_elastic_energy(self) -> np.ndarray:
         """Elastic energy of each strand [S] in joules, material angles as they are."""
@@ -508,8 +567,10 @@ class Simulator:
         return self.rods.elastic_energy()
 
     def elastic_forces(self) -> np.ndarray:
-        """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces)."""
-        return self.rods.elastic_forces()
+        """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces), with the term of edges
+        whose material frame a clip holds in space."""
+        arrays_ = self._clip_arrays()
+        return self.rods.elastic_forces(clip=None if arrays_ is None else arrays_[3])
 
     def bending_stiffness(self) -> np.ndarray:
         """The implicit step's stiffness matrix [S, 3N, 3N] in N/m (RodSystem.bending_stiffness)."""
@@ -573,10 +634,10 @@ def _check_max_substeps(value) -> int:
 
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                     wind, colliders, touch, hair_interaction, gravity, integrator):
+                     wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact):
     check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
                         touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag,
-                        integrator=integrator)
+                        integrator=integrator, strand_contact=strand_contact)
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
         if not (is_integer(value) and value >= 1):

@@ -26,17 +26,19 @@ from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
 from .implicit import (assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
                        strand_implicit_velocities)
-from .pins import HELD_DAMPING, strand_carry_root_frame, strand_place_pins
+from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
 from ..rods.state import COUNTERS, HIST_DX, HIST_ELASTIC, HIST_V
-from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_kmoch_forces, strand_twist_kmoch,
-                    strand_twist_quasistatic)
+from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_held_twist_forces, strand_kmoch_forces,
+                          strand_twist_kmoch, strand_twist_quasistatic)
 
 TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 # root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
 # pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
-# before the clamp moved to the root node, kept for comparison)
-ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2}
+# before the clamp moved to the root node, kept for comparison), free (no node held: node 0 has
+# its mass, the root edge's reference is carried in time as a pinned root's, and its material
+# angle is free in the twist solve)
+ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2, "free": 3}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
 # a twist solve that stalled at the rounding floor above this scaled residual is a failed step
@@ -69,6 +71,11 @@ class StepPlan:
         return self.root == "pinned"
 
     @property
+    def carried_root_frame(self) -> bool:
+        """The root edge's reference frame is carried in time, not by the head (pinned, free)."""
+        return self.root in ("pinned", "free")
+
+    @property
     def root_mode(self) -> int:
         return ROOT_CODES[self.root]
 
@@ -97,7 +104,7 @@ StateArgs = ti.types.argpack(
     tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
-    tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2)
+    tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2, clip=Vec3s3)
 ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
 StepScalars = ti.types.struct(
     h=float, t0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
@@ -109,8 +116,9 @@ class StageFlags:
     """The compile-time switches of the step kernels (passed as ti.template, so each distinct
     value compiles its own kernel once per process): a stage whose flag is off is neither
     compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
-    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held;
-    implicit: the implicit step (implicit.py) instead of symplectic Euler."""
+    moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held; clips:
+    a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
+    symplectic Euler."""
 
     external: bool
     wind_field: bool
@@ -123,16 +131,17 @@ class StageFlags:
     pins: bool
     root_mode: int
     implicit: bool = False
+    clips: bool = False
 
 
 @functools.lru_cache(maxsize=256)
 def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False, pins: bool = False,
-                **overrides) -> StageFlags:
+                clips: bool = False, **overrides) -> StageFlags:
     """The flags of `plan` for one launch."""
     flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
                  touch=plan.touch, pins=pins, root_mode=plan.root_mode,
-                 implicit=plan.integrator == "implicit")
+                 implicit=plan.integrator == "implicit", clips=clips)
     flags.update(overrides)
     return StageFlags(**flags)
 
@@ -153,7 +162,7 @@ class StepBundles:
                                root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
                                counters=st.counters, residuals=st.residuals, history=st.history,
                                tension=st.tension, blocks=st.blocks, block_rhs=st.block_rhs)
-        self._state, self._control, self.contacts = st, None, None
+        self._state, self._model, self._control, self.contacts = st, md, None, None
         self._drive_key, self._drive = None, None
 
     def bind(self, control) -> None:
@@ -165,18 +174,29 @@ class StepBundles:
         self._drive_key = None
 
     def drive(self, pins=None):
-        """The drive bundle; pins: None or the (mode, start, end) arrays of the pin table (an
-        unused flag's arrays are placeholders of the right type)."""
+        """The drive bundle; pins: None or the (mode, start, end, clip) arrays of the pin table
+        (an unused flag's arrays are placeholders of the right type)."""
         st, c = self._state, self._control
         key = (id(c.user_force), None if pins is None else tuple(id(a) for a in pins))
         if key != self._drive_key:
-            mode, start, end = pins if pins is not None else (st.counters, st.dx, st.dx)
+            mode, start, end, clip = pins if pins is not None else (st.counters, st.dx, st.dx, st.history)
             self._drive = DriveArgs(head=c.head, loads=c.loads, gusts=c.gusts, modes=c.modes,
                                     user_force=c.user_force if c.user_force is not None else st.force,
                                     tools=c.tools, tool_points=c.tool_points, pin_mode=mode,
-                                    pin_start=start, pin_end=end)
+                                    pin_start=start, pin_end=end, clip=clip)
             self._drive_key = key
         return self._drive
+
+
+    def twist_drive(self, pins=None):
+        """The drive bundle for the twist stage alone: `drive(pins)` once a control is bound,
+        else placeholders of the right types (a RodSystem without a simulator has no clips)."""
+        if self._control is not None:
+            return self.drive(pins)
+        st, md = self._state, self._model
+        return DriveArgs(head=st.dx, loads=st.root_t, gusts=st.root_t, modes=st.dx, user_force=st.force,
+                         tools=md.stiffness, tool_points=st.dx, pin_mode=st.counters, pin_start=st.dx,
+                         pin_end=st.dx, clip=st.history)
 
 
 def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
@@ -220,16 +240,27 @@ def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: t
 
 
 @ti.func
-def strand_symplectic_euler(s, h, md: ti.template(), st: ti.template()):
+def strand_symplectic_euler(s, h, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
     """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0); dx = the step's
-    displacement so far (h v, 0 on held nodes), which the projection and contacts add to."""
-    for i in range(md.node_count[s]):
+    displacement so far (h v, 0 on held nodes), which the projection and contacts add to. A
+    slider's two nodes (the strand's last edge, pins.py) move together along its axis under the
+    sum of their forces."""
+    n = md.node_count[s]
+    for i in range(n):
         st.x_prev[s, i] = st.x[s, i]
         st.dx[s, i] = vec3(0.0)
         if md.inv_mass[s, i] > 0.0:
             st.v[s, i] += h * md.inv_mass[s, i] * st.force[s, i]
             st.dx[s, i] = h * st.v[s, i]
             st.x[s, i] += st.dx[s, i]
+    if ti.static(fl.clips):
+        b = dr.clip[s, n - 2, 2]  # a / sqrt(pair mass), zero unless the last edge slides
+        if b.dot(b) > 0.0:
+            # v_a = v.a + h (F_c + F_c+1).a / m_pair, written in b = a / sqrt(m_pair): v_a a = speed b
+            speed = st.v[s, n - 1].dot(b) / b.dot(b) + h * b.dot(st.force[s, n - 2] + st.force[s, n - 1])
+            for i in ti.static(range(2)):
+                st.dx[s, n - 2 + i] = h * speed * b
+                st.x[s, n - 2 + i] += h * speed * b
 
 
 @ti.func
@@ -238,19 +269,36 @@ def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: t
     """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
     clamp that node 0 bends and twists against and from which the Bishop frames start, turns
     with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
-    for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
-        x[s, node] = head_rotate(head, k, root_frame[s, node]) + head[k, 3]
-    if ti.static(root_mode != 1):
+    if ti.static(root_mode != 3):  # a free root rides on nothing
+        for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
+            x[s, node] = head_rotate(head, k, root_frame[s, node]) + head[k, 3]
+    if ti.static(root_mode != 1 and root_mode != 3):
         root_t[s] = head_rotate(head, k, root_frame[s, 2])
         root_u[s] = head_rotate(head, k, root_frame[s, 3])
 
 
 @ti.func
-def solve_inextensibility(s, n, md: ti.template(), st: ti.template()):
+def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
+    """b = a / sqrt(m_pair) of strand s's slider (its last edge), zero without one: the pair's
+    inverse mass is b b^T (pins.py)."""
+    b = vec3(0.0)
+    if ti.static(fl.clips):
+        b = dr.clip[s, n - 2, 2]
+    return b
+
+
+@ti.func
+def solve_inextensibility(s, n, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
     """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
     in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda; the correction is added
-    to the step's displacement dx too (see strand_velocities)."""
+    to the step's displacement dx too (see strand_velocities). A slider's pair moves by
+    -2 lambda b (b . e) through the edge before it, along its axis only."""
     thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
+    slide = vec3(0.0)
+    if ti.static(fl.clips):
+        b = slider_vector(s, n, fl, dr)
+        if b.dot(b) > 0.0 and n >= 3:
+            slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(st.x[s, n - 2] - st.x[s, n - 3])
     # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
     # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
     e_before = vec3(0.0)
@@ -266,6 +314,10 @@ def solve_inextensibility(s, n, md: ti.template(), st: ti.template()):
         st.x[s, i] += move
         st.dx[s, i] += move
         e_before = e
+    if ti.static(fl.clips):
+        for i in ti.static(range(2)):
+            st.x[s, n - 2 + i] += slide
+            st.dx[s, n - 2 + i] += slide
 
 
 @ti.func
@@ -290,17 +342,22 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
         res = 0.0
+        b = slider_vector(s, n, fl, dr)
         for j in range(n - 1):
             e = st.x[s, j + 1] - st.x[s, j]
             w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
+            slide = 0.0  # the slider's share (b . e)^2 of the edge before it
+            if ti.static(fl.clips):
+                if j == n - 3:
+                    slide = b.dot(e) * b.dot(e)
             st.rhs[s, j] = 0.0
             st.diag[s, j] = 1.0
-            if w > 0.0:
+            if w > 0.0 or slide > 0.0:
                 l2 = md.rest_length[s, j] * md.rest_length[s, j]
                 c = e.dot(e) - l2
                 res = ti.max(res, ti.abs(c) / l2)
                 st.rhs[s, j] = c
-                st.diag[s, j] = 4.0 * e.dot(e) * w
+                st.diag[s, j] = 4.0 * (e.dot(e) * w + slide)
                 if ti.static(fl.pins):
                     st.diag[s, j] *= 1.0 + HELD_DAMPING
             if j + 1 < n - 1:
@@ -308,7 +365,7 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         if (res < sc.projection_tol or it >= sc.projection_iterations
                 or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous)):
             break
-        solve_inextensibility(s, n, md, st)
+        solve_inextensibility(s, n, fl, md, st, dr)
         it += 1
     return it, res
 
@@ -347,10 +404,12 @@ def record_projection(s, st: ti.template(), it, res, tol, max_iterations):
 
 
 @ti.func
-def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template()):
+def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template()):
     """The twist update of strand s (kmoch or quasistatic); material frames follow. Kmoch's rule
-    needs an elliptic section: round strands solve their twist exactly. Returns 1 if the solve
-    failed (iteration cap, or stalled far from equilibrium), else 0."""
+    needs an elliptic section: round strands solve their twist exactly. Edges held by
+    twist-holding clips keep their angles (set by strand_hold_clip_twist; clips need the
+    quasistatic mode). Returns 1 if the solve failed (iteration cap, or stalled far from
+    equilibrium), else 0."""
     failed = 0
     clamp = ti.static(fl.root_mode == 0)
     if ti.static(fl.twist_mode != 0):
@@ -359,10 +418,11 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template())
             if md.stiffness[s].x != md.stiffness[s].y:
                 exact = 0
         if exact:
-            it, res, how = strand_twist_quasistatic(s, clamp, md.node_count, st.bishop_u, st.bishop_v, st.kb,
-                                                    st.theta, md.rest_kappa, md.rest_twist, md.voronoi,
+            it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == 3), md.node_count,
+                                                    st.bishop_u, st.bishop_v, st.kb, st.theta,
+                                                    md.rest_kappa, md.rest_twist, md.voronoi,
                                                     md.stiffness, sc.twist_tol, sc.twist_iterations,
-                                                    st.diag, st.upper, st.rhs)
+                                                    st.diag, st.upper, st.rhs, fl.clips, dr.clip)
             st.counters[s, TWIST_IT] = ti.max(st.counters[s, TWIST_IT], it)
             st.residuals[s, 1] = ti.max(st.residuals[s, 1], res)
             if how == CAPPED:
@@ -395,6 +455,10 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
     if ti.static(fl.twist_mode == 1):
         strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                             st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+    if ti.static(fl.clips):
+        strand_held_twist_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                                 st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, dr.clip,
+                                 st.force)
     if ti.static(fl.implicit):
         record_elastic_change(s, md, st)
     if ti.static(fl.external or fl.touch):
@@ -420,9 +484,15 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
             if correction == 0:
                 place_root_and_pins(s, k, now, fl, sc, md, st, dr)
     else:
-        strand_symplectic_euler(s, sc.h, md, st)
+        strand_symplectic_euler(s, sc.h, fl, md, st, dr)
         place_root_and_pins(s, k, now, fl, sc, md, st, dr)
     return bad
+
+
+@ti.func
+def pin_fraction(k, sc):
+    """How far through the step call the pins are after step k of the launch (pins.py)."""
+    return ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df)
 
 
 @ti.func
@@ -430,8 +500,8 @@ def place_root_and_pins(s, k, now, fl: ti.template(), sc, md: ti.template(), st:
     """The root onto head pose `now`; pins min(1, pin_f0 + (k + 1) pin_df) of the way to their targets."""
     strand_place_root(s, dr.head, now, md.root_frame, st.x, st.root_t, st.root_u, fl.root_mode)
     if ti.static(fl.pins):
-        strand_place_pins(s, ti.min(1.0, sc.pin_f0 + (k + 1) * sc.pin_df), md.node_count, dr.pin_mode,
-                          dr.pin_start, dr.pin_end, dr.head, now, st.x)
+        strand_place_pins(s, pin_fraction(k, sc), fl.clips, md.node_count, dr.pin_mode, dr.pin_start,
+                          dr.pin_end, dr.clip, dr.head, now, st.x)
 
 
 @ti.func
@@ -458,9 +528,13 @@ def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.te
         bad = strand_velocities(s, sc, md, st)
     strand_frames(s, ti.static(fl.root_mode == 0), st.x, md.node_count, st.root_t, st.root_u, st.theta,
                   st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb)
-    if ti.static(fl.root_mode == 1):
+    if ti.static(fl.root_mode == 1 or fl.root_mode == 3):
         strand_carry_root_frame(s, st.x, st.root_t, st.root_u)
-    if strand_twist(s, fl, sc, md, st):
+    if ti.static(fl.clips):
+        now, _ = head_poses(k, fl)
+        strand_hold_clip_twist(s, pin_fraction(k, sc), md.node_count, dr.pin_mode, dr.clip, dr.head, now,
+                               st.bishop_u, st.bishop_v, st.theta)
+    if strand_twist(s, fl, sc, md, st, dr):
         bad = 1
     return bad
 
@@ -506,11 +580,12 @@ def compiled_variants() -> list[dict]:
 def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, moving_head: bool,
             pins=None) -> None:
     """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
-    pins: None, or (pin_mode, pin_start, pin_end, f0, df): after step k pinned nodes are
-    min(1, f0 + (k + 1) df) of the way from start to end (see pins.py)."""
-    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
+    pins: None, or (pin_mode, pin_start, pin_end, clip, f0, df, clips): after step k pinned
+    nodes are min(1, f0 + (k + 1) df) of the way from start to end (see pins.py); clips: a clip
+    holds twist or slides."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
     flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
-                        pins=pins is not None)
+                        pins=pins is not None, clips=clips)
     advance_strands(n_steps, flags, *step_scalars(plan, control, h, fraction), bundles.model,
                     bundles.state, bundles.drive(arrays_), bundles.contacts)
 
@@ -544,20 +619,28 @@ def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, roo
 
 
 def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: float, timers=None,
-               interaction=None, pins=None) -> None:
+               interaction=None, pins=None, strand_contact=None) -> None:
     """One step of h (head poses [prev, now] in control.head; pins as in `advance`, for this one
     step), with `interaction(model, state, control, h)` adding hair-hair forces and velocity
-    smoothing after the forces: two launches around it. With `timers(name)` (a context manager
-    timing each stage; it must synchronise) every stage runs in a launch of its own."""
-    arrays_, fraction = (None, (0.0, 0.0)) if pins is None else (pins[:3], pins[3:])
-    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None)
+    smoothing after the forces: two launches around it; and `strand_contact(project)` resolving
+    strand-strand contacts after the projection, calling project() to run the projection stage
+    again between its passes. With `timers(name)` (a context manager timing each stage; it must
+    synchronise) every stage runs in a launch of its own."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
+    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None, clips=clips)
     args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
+    projection = STAGE_NAMES.index("projection")
     if timers is None:
         run_stages(0, 1, *args)
         if interaction is not None:
             interaction(model, state, control, h)
-        run_stages(1, len(STAGES), *args)
+        if strand_contact is None:
+            run_stages(1, len(STAGES), *args)
+            return
+        run_stages(1, projection + 1, *args)
+        strand_contact(lambda: run_stages(projection, projection + 1, *args))
+        run_stages(projection + 1, len(STAGES), *args)
         return
     for k, (name, _) in enumerate(STAGES):
         with timers(name):
@@ -565,6 +648,9 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
         if k == 0 and interaction is not None:
             with timers("hair-hair"):
                 interaction(model, state, control, h)
+        if k == projection and strand_contact is not None:
+            with timers("strand contact"):
+                strand_contact(lambda: run_stages(projection, projection + 1, *args))
 
 
 @ti.kernel
@@ -585,14 +671,18 @@ def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) 
 
 @ti.kernel
 def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: ti.i32, md: ModelArgs,
-                        st: StateArgs):
-    """The twist stage alone; counters[s, BAD] = 0 where it failed, else -1."""
+                        st: StateArgs, dr: DriveArgs):
+    """The twist stage alone (twist-holding clips at their latest angles, head pose 1);
+    counters[s, BAD] = 0 where it failed, else -1."""
     sc = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
-                     twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=0.0,
+                     twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=1.0,
                      pin_df=0.0)
     for s in range(st.theta.shape[0]):
         st.counters[s, BAD] = -1
-        if strand_twist(s, fl, sc, md, st):
+        if ti.static(fl.clips):
+            strand_hold_clip_twist(s, 1.0, md.node_count, dr.pin_mode, dr.clip, dr.head, 1, st.bishop_u,
+                                   st.bishop_v, st.theta)
+        if strand_twist(s, fl, sc, md, st, dr):
             st.counters[s, BAD] = 0
 
 
@@ -609,14 +699,17 @@ def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
                      st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 
-def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int):
-    """The twist stage alone (no-op for "none"); material frames follow the new angles."""
+def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int,
+                     clip_arrays=None):
+    """The twist stage alone (no-op for "none"); material frames follow the new angles.
+    clip_arrays: the pin table's (mode, start, end, clip) when clips hold twist (else None)."""
     if twist == "none":
         return
     flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
-                       moving_head=False, contacts=False, mesh=False, touch=False, pins=False,
-                       root_mode=ROOT_CODES[root])
-    update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state)
+                       moving_head=False, contacts=False, mesh=False, touch=False,
+                       pins=clip_arrays is not None, root_mode=ROOT_CODES[root], clips=clip_arrays is not None)
+    update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state,
+                        bundles.twist_drive(clip_arrays))
 
 
 @ti.kernel

@@ -15,7 +15,7 @@ from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
 from .step import StepBundles, bending_stiffness_blocks, run_twist_update, total_elastic_forces
 from ..world.scene import INTEGRATORS
-from ..rods.twist import TWIST_MODES
+from ..rods.twist import TWIST_MODES, held_twist_forces
 from ..validation import is_integer
 
 
@@ -24,7 +24,7 @@ class RodSystem:
 
     twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
-    float32; 100). root: "clamped", "pinned" or "edge" (see Simulator). integrator: "explicit"
+    float32; 100). root: "clamped", "pinned", "edge" or "free" (see Simulator). integrator: "explicit"
     or "implicit" (allocates the implicit step's arrays, see Simulator). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
@@ -48,9 +48,12 @@ class RodSystem:
             raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
         self.model, self.state = build(groom, material, clamp=root == "clamped",
                                        implicit=integrator == "implicit")
-        if root == "edge":  # the first edge rides on the head: node 1 is held too
+        if root in ("edge", "free"):  # edge: node 1 rides on the head too; free: node 0 does not
             inv_mass = self.model.inv_mass.to_numpy()
-            inv_mass[:, 1] = 0.0
+            if root == "edge":
+                inv_mass[:, 1] = 0.0
+            else:
+                inv_mass[:, 0] = 1.0 / self.model.mass.to_numpy()[:, 0]
             self.model.inv_mass.from_numpy(inv_mass)
         self.bundles = StepBundles(self.model, self.state)
 
@@ -120,15 +123,17 @@ class RodSystem:
         update_frames(md.clamp, st.x, md.node_count, st.root_t, st.root_u, st.theta, st.bishop_u,
                       st.bishop_v, st.m1, st.m2, st.kb)
 
-    def update_twist(self) -> dict:
-        """Solve the free edges' material angles with the chosen twist mode. Returns
+    def update_twist(self, clip_arrays=None) -> dict:
+        """Solve the free edges' material angles with the chosen twist mode (clip_arrays: the
+        simulator's pin arrays when clips hold twist, pins.PinTable.device). Returns
         {"iterations", "residual", "cap_hits", "stalls"}: the quasistatic solve's max over strands
         (the scaled residual max |dE/dtheta| l / max(EI1, GJ)) and how many strands ended at the
         iteration cap or stalled above tolerance at the rounding floor; "kmoch" reports its exact
         solve of round strands, 1 iteration and residual NaN when every strand is elliptic;
         "none": 0 iterations, residual NaN."""
         self.reset_counters()
-        run_twist_update(self.bundles, self.twist, self.root, self.twist_tol, self.twist_iterations)
+        run_twist_update(self.bundles, self.twist, self.root, self.twist_tol, self.twist_iterations,
+                         clip_arrays)
         counters = self.state.counters.to_numpy()
         exact = [m.ellipticity == 1.0 for m in self.model.materials]
         report = {"iterations": int(counters[:, COUNTERS["twist_iterations"]].max()),
@@ -157,15 +162,22 @@ class RodSystem:
         """Bending + twist energy of all strands in joules, material angles held as they are."""
         return float(self.strand_elastic_energy().sum())
 
-    def elastic_forces(self, rest_kappa=None) -> np.ndarray:
+    def elastic_forces(self, rest_kappa=None, clip=None) -> np.ndarray:
         """Elastic forces [S, N, 3] in newtons: minus the gradient of `elastic_energy` with the
         material angles held fixed (holonomy term included). At twist equilibrium (after
         `update_twist` with "quasistatic") this is also the total force. With twist="kmoch" the
         angles of elliptic strands follow the centreline by Kmoch's rule, and this is minus the
         total derivative of E(x, theta_kmoch(x)) (after `update_twist`). rest_kappa: a vec4
         [S, N] ndarray of rest curvatures to use instead of the model's (the sag-free solve
-        probes the force's dependence on them this way, leaving the model as it is)."""
+        probes the force's dependence on them this way, leaving the model as it is). clip: the
+        pin table's clip array when clips hold twist: their edges' angles follow the centreline
+        (twist.strand_held_twist_forces)."""
         total_elastic_forces(self.model, self.state, self.twist, rest_kappa)
+        if clip is not None:
+            md, st = self.model, self.state
+            held_twist_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                              st.root_t, md.rest_kappa if rest_kappa is None else rest_kappa,
+                              md.rest_twist, md.voronoi, md.stiffness, clip, st.force)
         return self.state.force.to_numpy().astype(np.float64)
 
     def bending_stiffness(self) -> np.ndarray:

@@ -177,3 +177,34 @@ class HairInteraction:
         _scalar("friction", self.friction, "1/s")
         if self.max_density is not None:
             _scalar("max_density", self.max_density, "kg/m^3", inclusive=False)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StrandContact:
+    """Strand-strand contact (rod-rod): segments of different strands, and of one strand further
+    apart along it than `neighbour_gap` allows, are kept at least the sum of their contact radii
+    apart, inside the projection (docs/model.md, "Strand contact"), with Coulomb friction.
+
+    radius [m]: the contact radius of every strand (None: each strand's material radius).
+    friction: Coulomb coefficient (0: frictionless; >= 0). self_contact: whether a strand
+    collides with itself. iterations: contact passes per step, each followed by the length
+    projection (>= 1). tolerance: relative penetration (of the radius sum) a step may leave."""
+
+    radius: float | None = None
+    friction: float = 0.0
+    self_contact: bool = True
+    iterations: int = 4
+    tolerance: float = 0.05
+
+    def __post_init__(self):
+        if self.radius is not None:
+            _scalar("radius", self.radius, "m", inclusive=False)
+        _scalar("friction", self.friction, "(Coulomb coefficient)")
+        if not isinstance(self.self_contact, (bool, np.bool_)):
+            raise ValueError(f"self_contact must be True or False, got {self.self_contact!r}")
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
+                or not 1 <= self.iterations <= 1000:
+            raise ValueError(f"iterations must be an integer in [1, 1000], got {self.iterations!r}")
+        _scalar("tolerance", self.tolerance, "(relative)", inclusive=False)
+        if self.tolerance >= 1.0:
+            raise ValueError(f"tolerance must be in (0, 1) (relative to the radius sum), got {self.tolerance!r}")

@@ -8,7 +8,7 @@ import numpy as np
 from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, _scalar
 from .forces import Grab, Hand, Wind
 from ..rods.groom import Groom
-from .forces import HairInteraction
+from .forces import HairInteraction, StrandContact
 from ..rods.materials import Material, per_strand_materials
 from ..rods.twist import TWIST_MODES
 
@@ -118,7 +118,8 @@ class Scene:
     groom: the rest shapes; material: one Material or one per strand; head: a Head or None;
     motion: callable t -> (R, t) moving the head (taichi_hair.world.motion has nod, shake, turntable,
     jerk and keyframes) or None; wind: a Wind, a 3-vector [m/s] or None; touch: Hand and Grab
-    tools; hair_interaction: a HairInteraction or None; gravity [m/s^2]; drag [N s/m per metre
+    tools; hair_interaction: a HairInteraction or None; strand_contact: a StrandContact (strands
+    that do not pass through each other: braids, ponytails, loose strands) or None; gravity [m/s^2]; drag [N s/m per metre
     of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
     integrator: "explicit" (default) or "implicit" (see Simulator)."""
 
@@ -129,6 +130,7 @@ class Scene:
     wind: object = None
     touch: tuple = ()
     hair_interaction: HairInteraction | None = None
+    strand_contact: StrandContact | None = None
     gravity: tuple = (0.0, 0.0, -9.81)
     drag: float = 5e-4
     twist: str = "quasistatic"
@@ -138,7 +140,7 @@ class Scene:
         check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
                             hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
-                            integrator=self.integrator)
+                            integrator=self.integrator, strand_contact=self.strand_contact)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
@@ -150,11 +152,11 @@ class Scene:
                 "root_motion": self.motion, "touch": tuple(self.touch),
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist,
-                "integrator": self.integrator}
+                "integrator": self.integrator, "strand_contact": self.strand_contact}
 
 
 def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
-                        integrator="explicit"):
+                        integrator="explicit", strand_contact=None):
     """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
     parameter and what it allows. motion_name: what the caller calls the head motion."""
     if integrator not in INTEGRATORS:
@@ -172,6 +174,11 @@ def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_
             raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
     if hair_interaction is not None and not isinstance(hair_interaction, HairInteraction):
         raise ValueError(f"hair_interaction must be a HairInteraction or None, got {type(hair_interaction).__name__}")
+    if strand_contact is not None and not isinstance(strand_contact, StrandContact):
+        raise ValueError(f"strand_contact must be a StrandContact or None, got {type(strand_contact).__name__}")
+    if strand_contact is not None and integrator == "implicit":
+        raise ValueError("strand_contact runs with integrator='explicit' (the implicit step has no "
+                         "strand-strand contact)")
     if not _finite_vector3(gravity):
         raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
     _scalar("drag", drag, "N s/m per metre")

@@ -1,0 +1,497 @@
+"""Strand-strand contact (rod-rod), position based, with Coulomb friction.
+
+Every segment (the capsule of its strand's contact radius around nodes j and j + 1) is kept at
+least r_a + r_b away from every other segment it may touch: segments of other strands, and with
+`self_contact` segments of its own strand further apart along it than the neighbour gap. One
+`ContactGrid.resolve` call is one Jacobi pass: it finds all overlapping segment pairs on a
+spatial hash grid (O(segments) on average) and moves their nodes apart, the standard PBD
+edge-edge response, with position-based Coulomb friction on the step's relative slip. The step
+loop alternates it with the length projection (see step.strand_project), which is what turns
+the per-pair linearised pushes into a consistent configuration.
+
+Shapes: S strands, N = max nodes per strand (arrays padded), G = S (N - 1) segment slots; the
+segment slot of (strand s, segment j) is g = s (N - 1) + j, joining nodes j and j + 1. SI units
+throughout (positions and radii in metres).
+
+Stages, one kernel each: `_count` (clear, cell size, bin segments, count per hash bucket),
+`_prefix` (serial exclusive scan), `_fill` (counting sort), `_pair_pass` (pair search and the
+response, or measuring/recording only), `_apply` (averaged corrections into x and dx). All take
+ndarrays, so each compiles once per process and serves every simulator.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..rods import arrays
+from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Vec3s2, vec3
+
+ivec3 = ti.types.vector(3, ti.i32)
+IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
+
+# what a pair pass does with the pairs it finds
+MEASURE, RESOLVE, RECORD = 0, 1, 2
+# slots of the float parameter array
+MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION = 0, 1, 2, 3
+# slots of the integer counter array
+PAIRS, CANDIDATES, RECORDED = 0, 1, 2
+
+
+@ti.func
+def segment_closest(a0, a1, b0, b1):
+    """(s, t) in [0, 1]^2: parameters of the closest points a0 + s (a1 - a0), b0 + t (b1 - b0)
+    between segments a0-a1 and b0-b1 (Ericson, Real-Time Collision Detection 5.1.9). Zero-length
+    segments reduce to point-segment or point-point; parallel segments take s = 0 first (any
+    point of an overlap is closest). The line-line numerator and denominator are evaluated as
+    cross products, (d1 x d2).(d2 x r) and |d1 x d2|^2, the same quantities as Ericson's
+    b f - c e and a e - b^2 without their cancellation at small angles."""
+    d1 = a1 - a0
+    d2 = b1 - b0
+    r = a0 - b0
+    a = d1.dot(d1)
+    e = d2.dot(d2)
+    f = d2.dot(r)
+    s = 0.0
+    t = 0.0
+    if a > 0.0 and e > 0.0:
+        c = d1.dot(r)
+        b = d1.dot(d2)
+        normal = d1.cross(d2)
+        denom = normal.dot(normal)
+        if denom > 0.0:
+            s = ti.math.clamp(normal.dot(d2.cross(r)) / denom, 0.0, 1.0)
+        t = (b * s + f) / e
+        if t < 0.0:
+            t = 0.0
+            s = ti.math.clamp(-c / a, 0.0, 1.0)
+        elif t > 1.0:
+            t = 1.0
+            s = ti.math.clamp((b - c) / a, 0.0, 1.0)
+    elif a > 0.0:  # b is a point
+        s = ti.math.clamp(-d1.dot(r) / a, 0.0, 1.0)
+    elif e > 0.0:  # a is a point
+        t = ti.math.clamp(f / e, 0.0, 1.0)
+    return s, t
+
+
+@ti.func
+def perpendicular(v):
+    """A unit vector perpendicular to v (the x axis if v is zero): v crossed with the axis it is
+    least aligned with."""
+    axis = vec3(1.0, 0.0, 0.0)
+    if ti.abs(v[1]) <= ti.abs(v[0]) and ti.abs(v[1]) <= ti.abs(v[2]):
+        axis = vec3(0.0, 1.0, 0.0)
+    elif ti.abs(v[2]) <= ti.abs(v[0]) and ti.abs(v[2]) <= ti.abs(v[1]):
+        axis = vec3(0.0, 0.0, 1.0)
+    n = v.cross(axis)
+    length = n.norm()
+    out = vec3(1.0, 0.0, 0.0)
+    if length > 0.0:
+        out = n / length
+    return out
+
+
+@ti.func
+def contact_normal(pa, pb, da, db, d, rsum):
+    """Unit normal from segment b to segment a at closest points pa, pb (distance d [m]). When
+    the segments (nearly) intersect, (pa - pb) / d has no direction left: take da x db (normal
+    to both) or, for parallel segments, any perpendicular of their direction."""
+    n = vec3(0.0)
+    if d > 1e-12 * rsum:
+        n = (pa - pb) / d
+    else:
+        c = da.cross(db)
+        c2 = c.dot(c)
+        if c2 > 1e-12 * da.dot(da) * db.dot(db) and c2 > 0.0:
+            n = c / ti.sqrt(c2)
+        elif da.dot(da) > 0.0:
+            n = perpendicular(da)
+        else:
+            n = perpendicular(db)
+    return n
+
+
+@ti.func
+def cell_hash(c, mask):
+    """Bucket in [0, mask] of integer cell c (mask = table size - 1, a power of two minus one):
+    the usual three-prime hash, then murmur3's finaliser so the low bits the mask keeps are
+    mixed. Collisions cost time only: the pair search checks every candidate's exact cell."""
+    h = ((ti.cast(c[0], ti.u32) * ti.u32(73856093)) ^ (ti.cast(c[1], ti.u32) * ti.u32(19349663))
+         ^ (ti.cast(c[2], ti.u32) * ti.u32(83492791)))
+    h ^= ti.bit_shr(h, 16)
+    h *= ti.u32(0x85EBCA6B)
+    h ^= ti.bit_shr(h, 13)
+    return ti.cast(h & ti.cast(mask, ti.u32), ti.i32)
+
+
+@ti.kernel
+def _count(node_count: Ints1, x: Vec3s2, params: Scalars1, seg_cell: IVec3s1, seg_bucket: Ints1,
+           bucket_count: Ints1, mask: ti.i32):
+    """Bin every segment by its midpoint into a cubic cell of side L + 2 R_max (L the longest
+    current segment, R_max the largest radius; params[CELL] [m]) and count segments per hash
+    bucket. Two segments within r_a + r_b of each other have midpoints less than
+    l_a / 2 + l_b / 2 + r_a + r_b <= cell apart, so in the same or adjacent cells: the pair search
+    visits the 27 cells around a segment's own. The current (not rest) lengths keep that true for
+    stretched segments. Padding slots get bucket -1."""
+    n_seg = x.shape[1] - 1
+    params[MAX_LENGTH] = 0.0
+    for h in range(bucket_count.shape[0]):
+        bucket_count[h] = 0
+    for s, j in ti.ndrange(x.shape[0], n_seg):
+        if j + 1 < node_count[s]:
+            ti.atomic_max(params[MAX_LENGTH], (x[s, j + 1] - x[s, j]).norm())
+    params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
+    for s, j in ti.ndrange(x.shape[0], n_seg):
+        g = s * n_seg + j
+        seg_bucket[g] = -1
+        if j + 1 < node_count[s]:
+            c = ti.cast(ti.floor(0.5 * (x[s, j] + x[s, j + 1]) / params[CELL]), ti.i32)
+            h = cell_hash(c, mask)
+            seg_cell[g] = c
+            seg_bucket[g] = h
+            ti.atomic_add(bucket_count[h], 1)
+
+
+@ti.kernel
+def _prefix(bucket_count: Ints1, bucket_start: Ints1, cursor: Ints1):
+    """bucket_start[h] = segments in buckets before h (exclusive scan, [T + 1]); cursor = a copy
+    for _fill. Serial: T is a few times the segment count and the loop is trivial."""
+    bucket_start[0] = 0
+    ti.loop_config(serialize=True)
+    for h in range(bucket_count.shape[0]):
+        bucket_start[h + 1] = bucket_start[h] + bucket_count[h]
+    for h in range(bucket_count.shape[0]):
+        cursor[h] = bucket_start[h]
+
+
+@ti.kernel
+def _fill(seg_bucket: Ints1, cursor: Ints1, sorted_seg: Ints1):
+    """Counting sort: sorted_seg[bucket_start[h] ...] lists the segments of bucket h (in no
+    particular order)."""
+    for g in range(seg_bucket.shape[0]):
+        h = seg_bucket[g]
+        if h >= 0:
+            sorted_seg[ti.atomic_add(cursor[h], 1)] = g
+
+
+@ti.func
+def _push(s, i, w, inv_mass: ti.template(), correction, delta: ti.template(), hits: ti.template()):
+    """Add node (s, i)'s share w M_i^-1 correction of one pair, and count it, if it moves."""
+    share = w * inv_mass[s, i]
+    if share > 0.0:
+        delta[s, i] += share * correction
+        hits[s, i] += 1
+
+
+@ti.kernel
+def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: Ints1,
+               radius: Scalars1, gap: Ints1, self_contact: ti.i32, x: Vec3s2, x_prev: Vec3s2,
+               inv_mass: Scalars2, seg_cell: IVec3s1, seg_bucket: Ints1, bucket_start: Ints1,
+               sorted_seg: Ints1, mask: ti.i32, friction: float, params: Scalars1, counters: Ints1,
+               delta: Vec3s2, hits: Ints2, record: Ints2):
+    """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
+    non-excluded segments closer than r_a + r_b with at least one free node is a contact.
+    counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
+    largest r_a + r_b - d [m] among contacts.
+
+    mode RESOLVE: each contact adds its nodes' corrections to delta and counts them in hits
+    (cleared first): with closest-point weights w = (1 - s, s) on a and (1 - t, t) on b and
+    W = sum w_k^2 M_k^-1, node k moves by +-w_k M_k^-1 (lambda n + f / W), lambda = depth / W,
+    which moves the contact points apart by exactly depth along n (the linearised constraint)
+    and changes their relative displacement by f; f is the friction correction (with_friction),
+    minus the tangential slip since x_prev if shorter than friction x depth (static), else minus
+    friction x depth along it (kinetic). The corrections sum to zero momentum (sum of
+    w_k on a equals that on b). MEASURE: counters and penetration only. RECORD: also write
+    (g_a, g_b) of the first record.shape[0] contacts to record."""
+    n_seg = x.shape[1] - 1
+    counters[PAIRS] = 0
+    counters[CANDIDATES] = 0
+    counters[RECORDED] = 0
+    params[MAX_PENETRATION] = 0.0
+    if ti.static(mode == RESOLVE):
+        for s, i in ti.ndrange(x.shape[0], x.shape[1]):
+            delta[s, i] = vec3(0.0)
+            hits[s, i] = 0
+    for sa, ja in ti.ndrange(x.shape[0], n_seg):
+        ga = sa * n_seg + ja
+        if seg_bucket[ga] >= 0:
+            a0 = x[sa, ja]
+            a1 = x[sa, ja + 1]
+            ra = radius[sa]
+            length_a = (a1 - a0).norm()
+            mid_a = 0.5 * (a0 + a1)
+            home = seg_cell[ga]
+            examined = 0
+            found = 0
+            deepest = 0.0
+            for o in range(27):  # a runtime loop: unrolling 27 copies of the body bloats compile
+                c = home + ivec3(o % 3 - 1, (o // 3) % 3 - 1, o // 9 - 1)
+                h = cell_hash(c, mask)
+                for k in range(bucket_start[h], bucket_start[h + 1]):
+                    gb = sorted_seg[k]
+                    examined += 1
+                    # each pair once (from its lower slot), each b once (only from its own cell,
+                    # not from other cells hashed into the same bucket)
+                    cb = seg_cell[gb]
+                    if gb > ga and cb[0] == c[0] and cb[1] == c[1] and cb[2] == c[2]:
+                        sb = gb // n_seg
+                        jb = gb - sb * n_seg
+                        allowed = 1
+                        if sb == sa:
+                            allowed = 0
+                            if self_contact != 0 and jb - ja >= gap[sa]:  # jb > ja here
+                                allowed = 1
+                        b0 = x[sb, jb]
+                        b1 = x[sb, jb + 1]
+                        rsum = ra + radius[sb]
+                        # bounding spheres about the midpoints: a cheap exact reject before the
+                        # closest points (most candidates in the 27 cells are not near)
+                        reach = 0.5 * (length_a + (b1 - b0).norm()) + rsum
+                        gap_mid = mid_a - 0.5 * (b0 + b1)
+                        if allowed and gap_mid.dot(gap_mid) < reach * reach:
+                            s, t = segment_closest(a0, a1, b0, b1)
+                            pa = a0 + s * (a1 - a0)
+                            pb = b0 + t * (b1 - b0)
+                            d = (pa - pb).norm()
+                            w_a0 = 1.0 - s
+                            w_b0 = 1.0 - t
+                            W = (w_a0 * w_a0 * inv_mass[sa, ja] + s * s * inv_mass[sa, ja + 1]
+                                 + w_b0 * w_b0 * inv_mass[sb, jb] + t * t * inv_mass[sb, jb + 1])
+                            # W == 0: no free node takes a share (all four held, e.g. two
+                            # clipped root segments side by side, or the closest point exactly
+                            # on a held node of a segment touching a held one): nothing can
+                            # move, so not a contact this pass can act on
+                            if d < rsum and W > 0.0:
+                                depth = rsum - d
+                                found += 1
+                                deepest = ti.max(deepest, depth)
+                                if ti.static(mode == RESOLVE):
+                                    n = contact_normal(pa, pb, a1 - a0, b1 - b0, d, rsum)
+                                    correction = (depth / W) * n
+                                    if ti.static(with_friction):
+                                        slip = ((w_a0 * (a0 - x_prev[sa, ja]) + s * (a1 - x_prev[sa, ja + 1]))
+                                                - (w_b0 * (b0 - x_prev[sb, jb]) + t * (b1 - x_prev[sb, jb + 1])))
+                                        tangential = slip - slip.dot(n) * n
+                                        length = tangential.norm()
+                                        limit = friction * depth
+                                        if length <= limit:
+                                            correction -= tangential / W
+                                        else:  # length > limit >= 0, so no division by zero
+                                            correction -= (limit / length / W) * tangential
+                                    _push(sa, ja, w_a0, inv_mass, correction, delta, hits)
+                                    _push(sa, ja + 1, s, inv_mass, correction, delta, hits)
+                                    _push(sb, jb, w_b0, inv_mass, -correction, delta, hits)
+                                    _push(sb, jb + 1, t, inv_mass, -correction, delta, hits)
+                                if ti.static(mode == RECORD):
+                                    slot = ti.atomic_add(counters[RECORDED], 1)
+                                    if slot < record.shape[0]:
+                                        record[slot, 0] = ga
+                                        record[slot, 1] = gb
+            # one atomic per segment, not per candidate
+            ti.atomic_add(counters[CANDIDATES], examined)
+            ti.atomic_add(counters[PAIRS], found)
+            ti.atomic_max(params[MAX_PENETRATION], deepest)
+
+
+@ti.kernel
+def _apply(node_count: Ints1, inv_mass: Scalars2, delta: Vec3s2, hits: Ints2, x: Vec3s2, dx: Vec3s2):
+    """x += delta / hits, dx += the same, on free nodes with contacts: the Jacobi average of the
+    corrections a node received (their sum would overshoot where several pairs push a node)."""
+    for s, i in ti.ndrange(x.shape[0], x.shape[1]):
+        if i < node_count[s] and hits[s, i] > 0 and inv_mass[s, i] > 0.0:
+            move = delta[s, i] / hits[s, i]
+            x[s, i] += move
+            dx[s, i] += move
+
+
+def neighbour_gap(radius, mean_length):
+    """Segments i, j of one strand are never in contact if |i - j| < gap [S], gap = 1 +
+    ceil(0.8 pi r / l) (r the strand's contact radius [m], l its mean rest segment length [m]):
+    segments closer along the strand than about the arc of a U-turn of bend radius r (pi r, its
+    legs 2 r apart) come within 2 r of each other by bending alone, which contact must not fight
+    (it would stiffen every bend). At least 2, so segments sharing a node never count; 2 for a
+    strand without length."""
+    radius = np.asarray(radius, dtype=np.float64)
+    mean_length = np.asarray(mean_length, dtype=np.float64)
+    gap = np.full(radius.shape, 2, dtype=np.int64)
+    ok = mean_length > 0
+    gap[ok] = 1 + np.ceil(0.8 * np.pi * radius[ok] / mean_length[ok])
+    return np.maximum(gap, 2).astype(np.int32)
+
+
+class ContactGrid:
+    """Strand-strand contact of one simulator: the spatial hash grid and scratch arrays, sized
+    once for the scene (S strands of at most `max_nodes` nodes).
+
+    node_counts [S] int: nodes of each strand (arrays [S, max_nodes] are padded beyond).
+    radius [S] float (or a scalar) [m]: each strand's contact radius; two segments touch at
+    distance r_a + r_b.
+    friction: Coulomb coefficient (>= 0; 0 compiles the friction code out).
+    self_contact: whether a strand's segments collide with its own (beyond the neighbour gap).
+    max_nodes: N, the padded node count of the state arrays.
+    rest_length [S, N - 1] (numpy, or a Taichi ndarray) [m], optional: the rest segment lengths,
+    whose per-strand mean sets the neighbour gap (see `neighbour_gap`). Without it the gap is set
+    from the mean segment lengths of the first positions passed to any method.
+
+    Attributes after each call: last_pairs (contacts found), last_candidates (segment pairs
+    examined: the grid's cost), last_max_penetration [m] (largest r_a + r_b - d found, before
+    correction), cell_size [m]; neighbour_gap [S] once set.
+    """
+
+    def __init__(self, node_counts, radius, friction, self_contact, max_nodes, rest_length=None):
+        node_counts = np.asarray(node_counts, dtype=np.int32).reshape(-1)
+        self.S = len(node_counts)
+        self.N = int(max_nodes)
+        if self.S == 0 or self.N < 1:
+            raise ValueError(f"ContactGrid needs strands and max_nodes >= 1, got {self.S} strands, "
+                             f"max_nodes {max_nodes!r}")
+        if node_counts.min() < 0 or node_counts.max() > self.N:
+            raise ValueError(f"node_counts must be in [0, max_nodes={self.N}]")
+        radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (self.S,)).copy()
+        if not np.all(np.isfinite(radius)) or np.any(radius <= 0):
+            raise ValueError("contact radii must be finite and > 0 m")
+        if not (np.isfinite(friction) and friction >= 0):
+            raise ValueError(f"friction must be >= 0, got {friction!r}")
+        self.node_counts = node_counts
+        self.radius_values = radius
+        self.friction = float(friction)
+        self.self_contact = bool(self_contact)
+        n_seg = max(self.N - 1, 1)  # a slot even for point strands: Taichi arrays need a size
+        self.G = self.S * n_seg
+        # 2-4x the segments, a power of two so the bucket is a mask of the hash
+        self.T = 1 << max(6, int(math.ceil(math.log2(2 * self.G))))
+
+        self.node_count = arrays.ints((self.S,), node_counts)
+        self.radius = arrays.scalars((self.S,), radius)
+        self.gap = arrays.ints((self.S,), 2)
+        self.params = arrays.scalars((4,))
+        self.params.from_numpy(np.array([0.0, radius.max(), 0.0, 0.0], dtype=arrays.np_float()))
+        self.counters = arrays.ints((3,), 0)
+        self.seg_cell = ti.Vector.ndarray(3, ti.i32, (self.G,))
+        self.seg_bucket = arrays.ints((self.G,), -1)
+        self.sorted_seg = arrays.ints((self.G,), 0)
+        self.bucket_count = arrays.ints((self.T,), 0)
+        self.bucket_start = arrays.ints((self.T + 1,), 0)
+        self.cursor = arrays.ints((self.T,), 0)
+        self.delta = arrays.vectors(3, (self.S, self.N))
+        self.hits = arrays.ints((self.S, self.N), 0)
+        self.record = arrays.ints((1, 2), 0)  # grown by contact_pairs when needed
+        self._ones = None  # inv_mass of 1 everywhere, for calls without masses
+
+        self.neighbour_gap = None
+        if rest_length is not None:
+            rest = rest_length.to_numpy() if hasattr(rest_length, "to_numpy") else np.asarray(rest_length)
+            self._set_gap(np.asarray(rest, dtype=np.float64).reshape(self.S, -1))
+
+        self.last_pairs = 0
+        self.last_candidates = 0
+        self.last_max_penetration = 0.0
+        self.cell_size = 0.0
+
+    def _set_gap(self, lengths):
+        """Neighbour gap from per-segment lengths [S, >= N - 1] (padding ignored)."""
+        mean = np.zeros(self.S)
+        for s, n in enumerate(self.node_counts):
+            if n >= 2:
+                mean[s] = lengths[s, :n - 1].mean()
+        self.neighbour_gap = neighbour_gap(self.radius_values, mean)
+        self.gap.from_numpy(self.neighbour_gap)
+
+    def _check(self, x, *others):
+        """Shapes [S, N]; the neighbour gap from positions x if no rest lengths were given."""
+        for a in (x,) + others:
+            if tuple(a.shape) != (self.S, self.N):
+                raise ValueError(f"ContactGrid expects arrays of shape ({self.S}, {self.N}), got {tuple(a.shape)}")
+        if self.neighbour_gap is None:
+            self._set_gap(np.linalg.norm(np.diff(x.to_numpy(), axis=1), axis=2))
+
+    def _masses(self, x, inv_mass):
+        if inv_mass is not None:
+            self._check(x, inv_mass)
+            return inv_mass
+        if self._ones is None:
+            self._ones = arrays.scalars((self.S, self.N), 1.0)
+        return self._ones
+
+    def _rebuild(self, x):
+        mask = self.T - 1
+        _count(self.node_count, x, self.params, self.seg_cell, self.seg_bucket, self.bucket_count, mask)
+        _prefix(self.bucket_count, self.bucket_start, self.cursor)
+        _fill(self.seg_bucket, self.cursor, self.sorted_seg)
+
+    def _pass(self, mode, with_friction, x, x_prev, inv_mass):
+        self._rebuild(x)
+        _pair_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
+                   x, x_prev, inv_mass, self.seg_cell, self.seg_bucket, self.bucket_start,
+                   self.sorted_seg, self.T - 1, self.friction, self.params, self.counters,
+                   self.delta, self.hits, self.record)
+        counters = self.counters.to_numpy()
+        params = self.params.to_numpy()
+        self.last_pairs = int(counters[PAIRS])
+        self.last_candidates = int(counters[CANDIDATES])
+        self.last_max_penetration = float(params[MAX_PENETRATION])
+        self.cell_size = float(params[CELL])
+        return counters
+
+    def resolve(self, x, dx, x_prev, inv_mass) -> int:
+        """One contact pass on positions x [S, N] vec3 [m]: rebuild the grid, find the contacts,
+        push their segments apart to r_a + r_b (with friction on the slip x - x_prev), and add the
+        averaged corrections to x and to the step's displacement dx [S, N] vec3 [m]. Nodes with
+        inv_mass [S, N] [1/kg] == 0 never move. Returns the contacts found (pairs with at least
+        one free node); last_max_penetration holds their largest depth before the pass [m]."""
+        self._check(x, dx, x_prev, inv_mass)
+        self._pass(RESOLVE, self.friction > 0.0, x, x_prev, inv_mass)
+        if self.last_pairs:
+            _apply(self.node_count, inv_mass, self.delta, self.hits, x, dx)
+        return self.last_pairs
+
+    def max_penetration(self, x, inv_mass=None) -> float:
+        """The largest r_a + r_b - d [m] over non-excluded segment pairs at positions x [S, N] (0
+        if none touch). With inv_mass [S, N], pairs whose four nodes are all held are left out,
+        as resolve leaves them out."""
+        self._check(x)
+        self._pass(MEASURE, False, x, x, self._masses(x, inv_mass))
+        return self.last_max_penetration
+
+    def contact_pairs(self, x, inv_mass=None) -> np.ndarray:
+        """The contacts at positions x [S, N], for tests and diagnostics: [P, 4] int rows
+        (strand a, segment a, strand b, segment b), slot a < slot b, sorted."""
+        self._check(x)
+        masses = self._masses(x, inv_mass)
+        counters = self._pass(RECORD, False, x, x, masses)
+        if counters[RECORDED] > self.record.shape[0]:
+            self.record = arrays.ints((int(counters[RECORDED]), 2), 0)
+            counters = self._pass(RECORD, False, x, x, masses)
+        found = self.record.to_numpy()[:int(counters[RECORDED])]
+        n_seg = max(self.N - 1, 1)
+        rows = np.stack([found[:, 0] // n_seg, found[:, 0] % n_seg, found[:, 1] // n_seg, found[:, 1] % n_seg], axis=1)
+        return rows[np.lexsort(rows.T[::-1])] if len(rows) else rows.reshape(0, 4)
+
+
+def contact_grid(settings, model) -> ContactGrid:
+    """The ContactGrid of a simulator's `settings` (a world.forces.StrandContact) for `model`
+    (rods.state.RodModel): each strand's contact radius is settings.radius, or its material's
+    radius; the neighbour gap from the rest lengths."""
+    radius = (np.full(model.groom.n_strands, settings.radius) if settings.radius is not None
+              else np.array([m.radius for m in model.materials]))
+    return ContactGrid(np.asarray(model.groom.node_counts), radius, settings.friction,
+                       settings.self_contact, model.groom.max_nodes, rest_length=model.rest_length)
+
+
+def resolve_strand_contacts(grid: ContactGrid, settings, model, state, project) -> float:
+    """The strand-contact stage of one step, after the projection stage: up to
+    settings.iterations contact passes, each followed by `project()` (the length projection with
+    the head contacts again), stopping after the pass whose contacts were all within
+    settings.tolerance of the radius sum before it. Returns the largest depth [m] the last pass
+    found (before correcting it)."""
+    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    depth = 0.0
+    for _ in range(settings.iterations):
+        if grid.resolve(state.x, state.dx, state.x_prev, model.inv_mass) == 0:
+            return 0.0
+        depth = grid.last_max_penetration
+        project()
+        if depth <= allowed:
+            break
+    return depth
