@@ -56,6 +56,7 @@ from taichi_hair import runtime
 from taichi_hair.solver.stability import DEFAULT_STABILITY_FACTOR
 
 PRECISION = "float64"  # used when this adapter is the first to initialise Taichi
+PROJECTION_ITERATIONS = 1000  # the projection's cap (the Simulator's default is 100)
 
 
 def _version(package: str) -> str:
@@ -143,7 +144,10 @@ class _Strand:
             nodes, d1 = nodes[::-1].copy(), d1[::-1].copy()
         self.scenario_nodes = nodes
         self.d1_start = d1
-        self.rest_nodes = _unstretched(nodes, rod.length)
+        # a clamped root stays where the scenario clamps it; any other strand keeps its middle
+        # node in place (two ropes crossing still cross where they did)
+        clamped_root = rod.condition(self.root_end) is EndCondition.CLAMPED
+        self.rest_nodes = _unstretched(nodes, rod.length, 0 if clamped_root else len(nodes) // 2)
         # a clip turns about its own edge, which may point against the scenario's axis
         edge = self.rest_nodes[-1] - self.rest_nodes[-2]
         self.tip_sign = (float(np.sign(edge @ self.axis[self.tip_end])) if self.tip_motion is not None
@@ -165,12 +169,13 @@ class _Strand:
         return 0 if end is self.root_end else len(self.rest_nodes) - 1
 
 
-def _unstretched(nodes: np.ndarray, length: float) -> np.ndarray:
-    """The polyline with the same element directions and every element L / n long, from node 0."""
+def _unstretched(nodes: np.ndarray, length: float, anchor: int = 0) -> np.ndarray:
+    """The polyline with the same element directions and every element L / n long, walked both
+    ways from node `anchor`, which stays where it is."""
     e = np.diff(nodes, axis=0)
     t = e / np.linalg.norm(e, axis=1, keepdims=True)
-    steps = t * (length / len(e))
-    return np.vstack([nodes[:1], nodes[0] + np.cumsum(steps, axis=0)])
+    walked = np.vstack([np.zeros(3), np.cumsum(t * (length / len(e)), axis=0)])
+    return nodes[anchor] + walked - walked[anchor]
 
 
 def _motion_callable(strand: _Strand):
@@ -256,13 +261,16 @@ class TaichiHairSolver:
                 f"at or past the explicit step's limit, which taichi_hair refuses to run")
         strands = [_Strand(rod, n_elements) for rod in scenario.rods]
         roots = {s.rod.condition(s.root_end) for s in strands}
-        if len(roots) > 1:
-            raise NotImplementedError("rods held differently at their roots (clamped, pinned or free "
-                                      "in one scenario): taichi_hair's root condition is per simulator")
-        root = {EndCondition.CLAMPED: "clamped", EndCondition.PINNED: "pinned",
-                EndCondition.FREE: "free"}[roots.pop()]
-        needs_pins = root == "pinned" or any(s.rod.condition(s.tip_end) is not EndCondition.FREE
-                                             for s in strands)
+        # a pinned root is a pin on node 0 of a free strand: held in place, free to turn and spin;
+        # the implicit step needs a held root, and takes root="pinned" (which holds the spin)
+        root = "clamped" if roots == {EndCondition.CLAMPED} else "free"
+        if self.integrator == "implicit" and roots == {EndCondition.PINNED}:
+            root = "pinned"
+        if root == "free" and EndCondition.CLAMPED in roots:
+            raise NotImplementedError("rods clamped and rods pinned or free at their roots in one "
+                                      "scenario: taichi_hair's root condition is per simulator")
+        needs_pins = EndCondition.PINNED in roots or any(s.rod.condition(s.tip_end) is not EndCondition.FREE
+                                                         for s in strands)
         if needs_pins and not hasattr(th.Simulator, "turn_pin"):
             raise NotImplementedError("a pinned root or a held tip needs Simulator.add_pin with "
                                       "twist-holding clips (not in this taichi_hair)")
@@ -290,6 +298,9 @@ class TaichiHairSolver:
                        twist="quasistatic", colliders=colliders,
                        stability_factor=self.stability_factor,
                        max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
+                       # a straight rope pressed end-on into a floor (pile) gives the projection no
+                       # sideways way out but its small bow: Gauss-Seidel needs a few hundred passes
+                       projection_iterations=PROJECTION_ITERATIONS,
                        integrator=self.integrator, root=root,
                        root_motion=_motion_callable(motions[0]) if motions else None)
         if contact:
@@ -301,6 +312,8 @@ class TaichiHairSolver:
         for k, s in enumerate(strands):
             condition = s.rod.condition(s.tip_end)
             last = len(s.rest_nodes) - 1
+            if s.rod.condition(s.root_end) is EndCondition.PINNED and root == "free":
+                sim.add_pin(k, 0, s.scenario_nodes[0])
             if condition is EndCondition.PINNED:
                 sim.add_pin(k, last, s.scenario_nodes[-1])
             elif condition is EndCondition.CLAMPED:  # a clip holding the edge's frame, maybe sliding

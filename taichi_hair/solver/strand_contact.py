@@ -245,15 +245,31 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: In
                         b0 = x[sb, jb]
                         b1 = x[sb, jb + 1]
                         rsum = ra + radius[sb]
+                        a0p = x_prev[sa, ja]
+                        a1p = x_prev[sa, ja + 1]
+                        b0p = x_prev[sb, jb]
+                        b1p = x_prev[sb, jb + 1]
+                        # how far the pair moved this step: a pair that passed through each
+                        # other within it may now be up to that far apart
+                        motion = (ti.max((a0 - a0p).norm(), (a1 - a1p).norm())
+                                  + ti.max((b0 - b0p).norm(), (b1 - b1p).norm()))
                         # bounding spheres about the midpoints: a cheap exact reject before the
                         # closest points (most candidates in the 27 cells are not near)
-                        reach = 0.5 * (length_a + (b1 - b0).norm()) + rsum
+                        reach = 0.5 * (length_a + (b1 - b0).norm()) + rsum + motion
                         gap_mid = mid_a - 0.5 * (b0 + b1)
                         if allowed and gap_mid.dot(gap_mid) < reach * reach:
                             s, t = segment_closest(a0, a1, b0, b1)
                             pa = a0 + s * (a1 - a0)
                             pb = b0 + t * (b1 - b0)
                             d = (pa - pb).norm()
+                            # the side b was on at the step's start, at the same material points:
+                            # a pair that crossed within the step is pushed back to it, not on
+                            # through (discrete contact would let fast strands tunnel)
+                            before = (a0p + s * (a1p - a0p)) - (b0p + t * (b1p - b0p))
+                            crossed = 0
+                            if (pa - pb).dot(before) < 0.0 and before.dot(before) > 0.0:
+                                crossed = 1
+                                d = -(pa - pb).dot(before.normalized())  # > 0: how far through
                             w_a0 = 1.0 - s
                             w_b0 = 1.0 - t
                             W = (w_a0 * w_a0 * inv_mass[sa, ja] + s * s * inv_mass[sa, ja + 1]
@@ -262,12 +278,16 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: In
                             # clipped root segments side by side, or the closest point exactly
                             # on a held node of a segment touching a held one): nothing can
                             # move, so not a contact this pass can act on
-                            if d < rsum and W > 0.0:
+                            if (crossed == 1 or d < rsum) and W > 0.0:
                                 depth = rsum - d
+                                if crossed == 1:
+                                    depth = rsum + d
                                 found += 1
                                 deepest = ti.max(deepest, depth)
                                 if ti.static(mode == RESOLVE):
                                     n = contact_normal(pa, pb, a1 - a0, b1 - b0, d, rsum)
+                                    if crossed == 1:
+                                        n = before.normalized()
                                     correction = (depth / W) * n
                                     if ti.static(with_friction):
                                         slip = ((w_a0 * (a0 - x_prev[sa, ja]) + s * (a1 - x_prev[sa, ja + 1]))

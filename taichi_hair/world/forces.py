@@ -193,7 +193,7 @@ class StrandContact:
     radius: float | None = None
     friction: float = 0.0
     self_contact: bool = True
-    iterations: int = 4
+    iterations: int = 10
     tolerance: float = 0.05
 
     def __post_init__(self):
