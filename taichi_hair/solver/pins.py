@@ -43,11 +43,11 @@ import taichi as ti
 from ..rods import arrays
 from .collisions import from_head, head_rotate
 from ..rods.frames import parallel_transport
+from ..world.scene import ROOT_MODES  # noqa: F401 (re-exported: the root modes pins know)
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
-# "free": no node held, node 0 has its mass (a loose strand, or one held only by pins)
-ROOT_MODES = ("clamped", "pinned", "edge", "free")
+
 # With pins a stretch of strand can be held at both ends; taut and straight, its projection
 # system is singular (more length constraints than the free nodes can move along the line).
 # Levenberg-Marquardt damping of the diagonal, (1 + HELD_DAMPING), keeps every pivot positive;

@@ -109,6 +109,9 @@ def _host_distance(c, p):
 
 
 INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (solver/implicit.py)
+# how node 0 is held (solver/step.py ROOT_CODES): "free" holds no node (a loose strand, or one
+# held only by pins and clips)
+ROOT_MODES = ("clamped", "pinned", "edge", "free")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,7 +124,8 @@ class Scene:
     tools; hair_interaction: a HairInteraction or None; strand_contact: a StrandContact (strands
     that do not pass through each other: braids, ponytails, loose strands) or None; gravity [m/s^2]; drag [N s/m per metre
     of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
-    integrator: "explicit" (default) or "implicit" (see Simulator)."""
+    integrator: "explicit" (default) or "implicit" (see Simulator); root: how node 0 is held,
+    "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator)."""
 
     groom: Groom
     material: object = field(default_factory=Material)
@@ -135,8 +139,11 @@ class Scene:
     drag: float = 5e-4
     twist: str = "quasistatic"
     integrator: str = "explicit"
+    root: str = "clamped"
 
     def __post_init__(self):
+        if self.root not in ROOT_MODES:
+            raise ValueError(f"root must be one of {ROOT_MODES}, got {self.root!r}")
         check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
                             hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
@@ -152,7 +159,8 @@ class Scene:
                 "root_motion": self.motion, "touch": tuple(self.touch),
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist,
-                "integrator": self.integrator, "strand_contact": self.strand_contact}
+                "integrator": self.integrator, "strand_contact": self.strand_contact,
+                "root": self.root}
 
 
 def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,

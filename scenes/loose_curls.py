@@ -1,0 +1,53 @@
+"""Cut hair: loose tight curls (elliptic, 3 mm curl radius) dropped in a heap onto a table, where
+they land on each other and stay apart: free strands (root="free", no node held), strand-strand
+contact with friction, and a floor.
+
+    .venv/bin/taichi-hair run scenes/loose_curls.py --out out/loose_curls
+
+The curls are far thicker than hair for contact (a 0.5 mm contact radius: a lock of hair, each
+guide standing for a few hundred fibres, not a single fibre), so the heap is visible.
+"""
+
+import numpy as np
+
+import taichi_hair as th
+from taichi_hair.app.runner import Shot
+
+N_CURLS = 16
+CONTACT_RADIUS = 5e-4  # [m] a lock's half-thickness
+
+
+def curls(n=N_CURLS, seed=3):
+    """n helices of 3 mm radius and 6 mm pitch, 8 cm long, 24 nodes, with random axes, stacked
+    in a loose pile 2-10 cm above the table."""
+    rng = np.random.default_rng(seed)
+    turns = np.linspace(0.0, 1.0, 24)
+    strands = []
+    for k in range(n):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        side = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+        side /= np.linalg.norm(side)
+        up = np.cross(axis, side)
+        rise = 0.006 / (2 * np.pi)
+        omega = 1.0 / np.hypot(0.003, rise)
+        angle = omega * 0.08 * turns
+        local = (0.003 * np.cos(angle)[:, None] * side + 0.003 * np.sin(angle)[:, None] * up
+                 + (rise * angle)[:, None] * axis)
+        centre = np.array([rng.uniform(-0.02, 0.02), rng.uniform(-0.02, 0.02), 0.02 + 0.005 * k])
+        strands.append(centre + local - local.mean(axis=0))
+    return th.Groom.from_polylines(np.array(strands))
+
+
+def build() -> th.Scene:
+    table = th.Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), margin=CONTACT_RADIUS,
+                     friction=0.4, attached="world")
+    return th.Scene(
+        groom=curls(), head=th.Head(colliders=(table,)),
+        material=th.Material(ellipticity=2.0), root="free", drag=2e-3,
+        strand_contact=th.StrandContact(radius=CONTACT_RADIUS, friction=0.3))
+
+
+def shot() -> Shot:
+    return Shot(frames=48, fps=24, eye=(0.12, -0.12, 0.09), target=(0.0, 0.0, 0.01), fov_y=40.0,
+                hair_colour=(0.35, 0.2, 0.1), hair_width=1e-3)
