@@ -632,13 +632,15 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
             bundles.drive(arrays_), bundles.contacts)
     projection = STAGE_NAMES.index("projection")
     if timers is None:
-        run_stages(0, 1, *args)
+        first = 0
         if interaction is not None:
+            run_stages(0, 1, *args)
             interaction(model, state, control, h)
+            first = 1
         if strand_contact is None:
-            run_stages(1, len(STAGES), *args)
+            run_stages(first, len(STAGES), *args)
             return
-        run_stages(1, projection + 1, *args)
+        run_stages(first, projection + 1, *args)
         strand_contact(lambda: run_stages(projection, projection + 1, *args))
         run_stages(projection + 1, len(STAGES), *args)
         return

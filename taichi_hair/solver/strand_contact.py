@@ -13,10 +13,12 @@ Shapes: S strands, N = max nodes per strand (arrays padded), G = S (N - 1) segme
 segment slot of (strand s, segment j) is g = s (N - 1) + j, joining nodes j and j + 1. SI units
 throughout (positions and radii in metres).
 
-Stages, one kernel each: `_count` (clear, cell size, bin segments, count per hash bucket),
+Stages, one function each: `_count` (clear, cell size, bin segments, count per hash bucket),
 `_prefix` (serial exclusive scan), `_fill` (counting sort), `_pair_pass` (pair search and the
-response, or measuring/recording only), `_apply` (averaged corrections into x and dx). All take
-ndarrays, so each compiles once per process and serves every simulator.
+response, or measuring/recording only), `_apply` (averaged corrections into x and dx). One kernel,
+`_contact_pass`, runs them in order as its top-level loops: a pass is one launch, since launch
+overhead, not the work, dominates scenes of a few strands. It takes ndarrays, so it compiles once
+per process (per mode) and serves every simulator.
 """
 
 import math
@@ -33,7 +35,8 @@ IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
 # what a pair pass does with the pairs it finds
 MEASURE, RESOLVE, RECORD = 0, 1, 2
 # slots of the float parameter array
-MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION = 0, 1, 2, 3
+# (PAIR_COUNT repeats counters[PAIRS] as a float, so a pass reads back one small array)
+MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT = 0, 1, 2, 3, 4
 # slots of the integer counter array
 PAIRS, CANDIDATES, RECORDED = 0, 1, 2
 
@@ -125,9 +128,9 @@ def cell_hash(c, mask):
     return ti.cast(h & ti.cast(mask, ti.u32), ti.i32)
 
 
-@ti.kernel
-def _count(node_count: Ints1, x: Vec3s2, params: Scalars1, seg_cell: IVec3s1, seg_bucket: Ints1,
-           bucket_count: Ints1, mask: ti.i32):
+@ti.func
+def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), seg_cell: ti.template(),
+           seg_bucket: ti.template(), bucket_count: ti.template(), mask):
     """Bin every segment by its midpoint into a cubic cell of side L + 2 R_max (L the longest
     current segment, R_max the largest radius; params[CELL] [m]) and count segments per hash
     bucket. Two segments within r_a + r_b of each other have midpoints less than
@@ -153,8 +156,8 @@ def _count(node_count: Ints1, x: Vec3s2, params: Scalars1, seg_cell: IVec3s1, se
             ti.atomic_add(bucket_count[h], 1)
 
 
-@ti.kernel
-def _prefix(bucket_count: Ints1, bucket_start: Ints1, cursor: Ints1):
+@ti.func
+def _prefix(bucket_count: ti.template(), bucket_start: ti.template(), cursor: ti.template()):
     """bucket_start[h] = segments in buckets before h (exclusive scan, [T + 1]); cursor = a copy
     for _fill. Serial: T is a few times the segment count and the loop is trivial."""
     bucket_start[0] = 0
@@ -165,8 +168,8 @@ def _prefix(bucket_count: Ints1, bucket_start: Ints1, cursor: Ints1):
         cursor[h] = bucket_start[h]
 
 
-@ti.kernel
-def _fill(seg_bucket: Ints1, cursor: Ints1, sorted_seg: Ints1):
+@ti.func
+def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.template()):
     """Counting sort: sorted_seg[bucket_start[h] ...] lists the segments of bucket h (in no
     particular order)."""
     for g in range(seg_bucket.shape[0]):
@@ -184,12 +187,13 @@ def _push(s, i, w, inv_mass: ti.template(), correction, delta: ti.template(), hi
         hits[s, i] += 1
 
 
-@ti.kernel
-def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: Ints1,
-               radius: Scalars1, gap: Ints1, self_contact: ti.i32, x: Vec3s2, x_prev: Vec3s2,
-               inv_mass: Scalars2, seg_cell: IVec3s1, seg_bucket: Ints1, bucket_start: Ints1,
-               sorted_seg: Ints1, mask: ti.i32, friction: float, params: Scalars1, counters: Ints1,
-               delta: Vec3s2, hits: Ints2, record: Ints2):
+@ti.func
+def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti.template(),
+               radius: ti.template(), gap: ti.template(), self_contact, x: ti.template(),
+               x_prev: ti.template(), inv_mass: ti.template(), seg_cell: ti.template(),
+               seg_bucket: ti.template(), bucket_start: ti.template(), sorted_seg: ti.template(), mask,
+               friction, params: ti.template(), counters: ti.template(), delta: ti.template(),
+               hits: ti.template(), record: ti.template()):
     """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
     non-excluded segments closer than r_a + r_b with at least one free node is a contact.
     counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
@@ -314,8 +318,9 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: In
             ti.atomic_max(params[MAX_PENETRATION], deepest)
 
 
-@ti.kernel
-def _apply(node_count: Ints1, inv_mass: Scalars2, delta: Vec3s2, hits: Ints2, x: Vec3s2, dx: Vec3s2):
+@ti.func
+def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.template(), hits: ti.template(),
+           x: ti.template(), dx: ti.template()):
     """x += delta / hits, dx += the same, on free nodes with contacts: the Jacobi average of the
     corrections a node received (their sum would overshoot where several pairs push a node)."""
     for s, i in ti.ndrange(x.shape[0], x.shape[1]):
@@ -323,6 +328,25 @@ def _apply(node_count: Ints1, inv_mass: Scalars2, delta: Vec3s2, hits: Ints2, x:
             move = delta[s, i] / hits[s, i]
             x[s, i] += move
             dx[s, i] += move
+
+
+@ti.kernel
+def _contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: Ints1, radius: Scalars1,
+                  gap: Ints1, self_contact: ti.i32, x: Vec3s2, x_prev: Vec3s2, inv_mass: Scalars2,
+                  dx: Vec3s2, seg_cell: IVec3s1, seg_bucket: Ints1, bucket_count: Ints1,
+                  bucket_start: Ints1, cursor: Ints1, sorted_seg: Ints1, mask: ti.i32, friction: float,
+                  params: Scalars1, counters: Ints1, delta: Vec3s2, hits: Ints2, record: Ints2):
+    """One contact pass in one launch (launch overhead, not the work, dominates small scenes):
+    the stages _count, _prefix, _fill, _pair_pass and, resolving, _apply, each a top-level
+    loop (Taichi runs a kernel's top-level loops one after another)."""
+    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask)
+    _prefix(bucket_count, bucket_start, cursor)
+    _fill(seg_bucket, cursor, sorted_seg)
+    _pair_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, seg_cell,
+               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record)
+    if ti.static(mode == RESOLVE):
+        _apply(node_count, inv_mass, delta, hits, x, dx)
+    params[PAIR_COUNT] = ti.cast(counters[PAIRS], float)
 
 
 def neighbour_gap(radius, mean_length):
@@ -385,8 +409,8 @@ class ContactGrid:
         self.node_count = arrays.ints((self.S,), node_counts)
         self.radius = arrays.scalars((self.S,), radius)
         self.gap = arrays.ints((self.S,), 2)
-        self.params = arrays.scalars((4,))
-        self.params.from_numpy(np.array([0.0, radius.max(), 0.0, 0.0], dtype=arrays.np_float()))
+        self.params = arrays.scalars((5,))
+        self.params.from_numpy(np.array([0.0, radius.max(), 0.0, 0.0, 0.0], dtype=arrays.np_float()))
         self.counters = arrays.ints((3,), 0)
         self.seg_cell = ti.Vector.ndarray(3, ti.i32, (self.G,))
         self.seg_bucket = arrays.ints((self.G,), -1)
@@ -405,7 +429,6 @@ class ContactGrid:
             self._set_gap(np.asarray(rest, dtype=np.float64).reshape(self.S, -1))
 
         self.last_pairs = 0
-        self.last_candidates = 0
         self.last_max_penetration = 0.0
         self.cell_size = 0.0
 
@@ -434,25 +457,21 @@ class ContactGrid:
             self._ones = arrays.scalars((self.S, self.N), 1.0)
         return self._ones
 
-    def _rebuild(self, x):
-        mask = self.T - 1
-        _count(self.node_count, x, self.params, self.seg_cell, self.seg_bucket, self.bucket_count, mask)
-        _prefix(self.bucket_count, self.bucket_start, self.cursor)
-        _fill(self.seg_bucket, self.cursor, self.sorted_seg)
-
-    def _pass(self, mode, with_friction, x, x_prev, inv_mass):
-        self._rebuild(x)
-        _pair_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
-                   x, x_prev, inv_mass, self.seg_cell, self.seg_bucket, self.bucket_start,
-                   self.sorted_seg, self.T - 1, self.friction, self.params, self.counters,
-                   self.delta, self.hits, self.record)
-        counters = self.counters.to_numpy()
+    def _pass(self, mode, with_friction, x, x_prev, inv_mass, dx=None):
+        """One pass (grid rebuilt from x); resolving, the corrections go into x and dx."""
+        _contact_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
+                      x, x_prev, inv_mass, x if dx is None else dx, self.seg_cell, self.seg_bucket,
+                      self.bucket_count, self.bucket_start, self.cursor, self.sorted_seg, self.T - 1,
+                      self.friction, self.params, self.counters, self.delta, self.hits, self.record)
         params = self.params.to_numpy()
-        self.last_pairs = int(counters[PAIRS])
-        self.last_candidates = int(counters[CANDIDATES])
+        self.last_pairs = int(round(float(params[PAIR_COUNT])))
         self.last_max_penetration = float(params[MAX_PENETRATION])
         self.cell_size = float(params[CELL])
-        return counters
+
+    @property
+    def last_candidates(self) -> int:
+        """Segment pairs the last pass examined (the grid's cost), read on demand."""
+        return int(self.counters.to_numpy()[CANDIDATES])
 
     def resolve(self, x, dx, x_prev, inv_mass) -> int:
         """One contact pass on positions x [S, N] vec3 [m]: rebuild the grid, find the contacts,
@@ -461,9 +480,7 @@ class ContactGrid:
         inv_mass [S, N] [1/kg] == 0 never move. Returns the contacts found (pairs with at least
         one free node); last_max_penetration holds their largest depth before the pass [m]."""
         self._check(x, dx, x_prev, inv_mass)
-        self._pass(RESOLVE, self.friction > 0.0, x, x_prev, inv_mass)
-        if self.last_pairs:
-            _apply(self.node_count, inv_mass, self.delta, self.hits, x, dx)
+        self._pass(RESOLVE, self.friction > 0.0, x, x_prev, inv_mass, dx)
         return self.last_pairs
 
     def max_penetration(self, x, inv_mass=None) -> float:
@@ -479,10 +496,12 @@ class ContactGrid:
         (strand a, segment a, strand b, segment b), slot a < slot b, sorted."""
         self._check(x)
         masses = self._masses(x, inv_mass)
-        counters = self._pass(RECORD, False, x, x, masses)
+        self._pass(RECORD, False, x, x, masses)
+        counters = self.counters.to_numpy()
         if counters[RECORDED] > self.record.shape[0]:
             self.record = arrays.ints((int(counters[RECORDED]), 2), 0)
-            counters = self._pass(RECORD, False, x, x, masses)
+            self._pass(RECORD, False, x, x, masses)
+            counters = self.counters.to_numpy()
         found = self.record.to_numpy()[:int(counters[RECORDED])]
         n_seg = max(self.N - 1, 1)
         rows = np.stack([found[:, 0] // n_seg, found[:, 0] % n_seg, found[:, 1] // n_seg, found[:, 1] % n_seg], axis=1)
