@@ -70,7 +70,7 @@ import numpy as np
 from ..rods import arrays
 from ..rods.groom import Groom
 from ..rods.materials import Material, per_strand_materials, stiffness_table
-from ..solver.pins import ROOT_MODES
+from ..world.scene import ROOT_MODES
 from ..rods.rod import first_node
 from ..world.scene import ColliderUnion, Head
 from ..runtime import precision

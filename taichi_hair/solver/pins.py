@@ -43,7 +43,6 @@ import taichi as ti
 from ..rods import arrays
 from .collisions import from_head, head_rotate
 from ..rods.frames import parallel_transport
-from ..world.scene import ROOT_MODES  # noqa: F401 (re-exported: the root modes pins know)
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}

@@ -9,7 +9,7 @@ import numpy as np
 from ..rods import arrays
 from ..rods.frames import update_frames, update_material_frames
 from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
-from .pins import ROOT_MODES
+from ..world.scene import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
