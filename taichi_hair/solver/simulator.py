@@ -27,7 +27,7 @@ from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   place_roots, project_once, seed_history, strand_mechanical_energy)
+                   place_roots, project_once, seed_history, step_with_strand_contact, strand_mechanical_energy)
 
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
@@ -346,7 +346,11 @@ class Simulator:
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
-            if staged:
+            if self.strand_contact is not None and timers is None and self.interaction is None:
+                depth = step_with_strand_contact(self._bundles, self.plan, self.control, h, self._contact_grid,
+                                                 self.strand_contact, pins)
+                self._contact_depth = max(self._contact_depth, depth)
+            elif staged:
                 kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
                            self.interaction.stage if self.interaction is not None else None, pins,
                            self._strand_contact_stage if self.strand_contact is not None else None)
@@ -499,7 +503,8 @@ class Simulator:
         if self.twist == "kmoch":
             report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
         if self.strand_contact is not None:
-            report["strand_contact_depth_max"] = self._contact_depth
+            fused = self._contact_grid.deepest_since_reset(reset)
+            report["strand_contact_depth_max"] = max(self._contact_depth, fused)
         if reset:
             self._reset_counters()
             self._contact_depth = 0.0

@@ -26,6 +26,8 @@ from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
 from .implicit import (assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
                        strand_implicit_velocities)
+from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, STEP_VALUES, ContactGridArgs,
+                             contact_pass, resolve_strand_contacts)
 from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
 from ..rods.state import COUNTERS, HIST_DX, HIST_ELASTIC, HIST_V
@@ -187,6 +189,11 @@ class StepBundles:
             self._drive_key = key
         return self._drive
 
+
+    @property
+    def rods(self):
+        """(RodModel, RodState): the arrays the bundles hold."""
+        return self._model, self._state
 
     def twist_drive(self, pins=None):
         """The drive bundle for the twist stage alone: `drive(pins)` once a control is bound,
@@ -653,6 +660,96 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
         if k == projection and strand_contact is not None:
             with timers("strand contact"):
                 strand_contact(lambda: run_stages(projection, projection + 1, *args))
+
+
+PROJECTION = STAGE_NAMES.index("projection")
+
+
+@ti.kernel
+def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(), md: ModelArgs, st: StateArgs,
+                                dr: DriveArgs, co: ContactArgs, cg: ContactGridArgs):
+    """One step of h with strand-strand contact, in one launch when one contact pass is enough
+    (head poses [prev, now]): the stages up to the projection per strand, a contact pass
+    (strand_contact.contact_pass) and, if it found contacts, the projection stage again; if
+    that pass found none, or all within the allowed depth, the step is done (grid_params[DONE])
+    and velocities, frames and twist follow here; otherwise the caller runs further passes and
+    the last stage (step_with_strand_contact). One pass, not a loop of them: every pass unrolled
+    into the kernel multiplies its compile time. grid_params[DEPTH_MAX] keeps the deepest
+    overlap a step's last pass found. counters[s, BAD] = 0 where a stage failed, else -1. Every
+    loop is a top-level loop of the kernel (parallel), so the pass sees every strand's
+    corrections. The scalars come in grid_params[STEP_VALUES:] (write_step_values): Taichi's cap
+    of 64 arguments leaves no room for them."""
+    sc = StepScalars(h=cg.grid_params[STEP_VALUES + 0], t0=cg.grid_params[STEP_VALUES + 1], drag=cg.grid_params[STEP_VALUES + 2], max_speed=cg.grid_params[STEP_VALUES + 3],
+                     projection_tol=cg.grid_params[STEP_VALUES + 4], projection_iterations=ti.cast(cg.grid_params[STEP_VALUES + 5], ti.i32),
+                     twist_tol=cg.grid_params[STEP_VALUES + 6], twist_iterations=ti.cast(cg.grid_params[STEP_VALUES + 7], ti.i32),
+                     n_analytic=ti.cast(cg.grid_params[STEP_VALUES + 8], ti.i32), pin_f0=cg.grid_params[STEP_VALUES + 9], pin_df=cg.grid_params[STEP_VALUES + 10])
+    self_contact = ti.cast(cg.grid_params[STEP_VALUES + 11], ti.i32)
+    mask = ti.cast(cg.grid_params[STEP_VALUES + 12], ti.i32)
+    friction = cg.grid_params[STEP_VALUES + 13]
+    allowed = cg.grid_params[STEP_VALUES + 14]
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+        for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+            if stage(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
+    contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x, st.x_prev,
+                 md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count, cg.bucket_start, cg.cursor,
+                 cg.sorted_seg, mask, friction, cg.grid_params, cg.grid_counters, cg.delta, cg.hits, cg.hits,
+                 1)  # (the record array: unused when resolving)
+    cg.grid_params[DONE] = 1.0
+    project = 0
+    if cg.grid_counters[PAIRS] > 0:
+        project = 1
+        cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], cg.grid_params[MAX_PENETRATION])
+        if cg.grid_params[MAX_PENETRATION] > allowed:
+            cg.grid_params[DONE] = 0.0
+    for s in range(st.x.shape[0] * project):
+        if stage_project(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
+    done = ti.cast(cg.grid_params[DONE], ti.i32)
+    for s in range(st.x.shape[0] * done):
+        if stage_frames_twist(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
+
+
+@ti.kernel
+def write_step_values(params: Scalars1, h: float, t0: float, drag: float, max_speed: float,
+                      projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
+                      twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+                      self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float):
+    """params[STEP_VALUES:] = StepScalars' fields in order, then self_contact, the hash mask,
+    friction and the allowed depth [m] (advance_with_strand_contact reads them)."""
+    values = ti.Vector([h, t0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
+                        twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed],
+                       dt=float)
+    for i in ti.static(range(15)):
+        params[STEP_VALUES + i] = values[i]
+
+
+def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, grid, settings,
+                             pins=None) -> float:
+    """One step of h with strand contact: `advance_with_strand_contact`, then, if its pass left
+    contacts deeper than allowed, up to settings.iterations - 1 more passes (each with the
+    projection stage) and the last stage, in launches of their own. grid a
+    strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
+    depth [m] the last of those further passes found (0 if none ran)."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
+    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None, clips=clips)
+    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    scalars = step_scalars(plan, control, h, fraction)
+    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction, allowed)
+    drive = bundles.drive(arrays_)
+    advance_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state, drive,
+                                bundles.contacts, grid.args())
+    if grid.params.to_numpy()[DONE] > 0.5:
+        return 0.0
+    args = (flags, *scalars, bundles.model, bundles.state, drive, bundles.contacts)
+    model, state = bundles.rods
+    depth = resolve_strand_contacts(grid, settings, model, state,
+                                    lambda: run_stages(PROJECTION, PROJECTION + 1, *args),
+                                    passes=settings.iterations - 1)
+    run_stages(PROJECTION + 1, len(STAGES), *args)
+    return depth
 
 
 @ti.kernel

@@ -31,12 +31,22 @@ from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Vec3s2, vec3
 
 ivec3 = ti.types.vector(3, ti.i32)
 IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
+# a grid's arrays as one kernel argument (the fused step's: Taichi caps a kernel's arguments at 64,
+# counting each argpack and each of its members, so this one has room for 12 and no scalars:
+# params[STEP_VALUES:] carries them; member names must differ from every other bundle's, which
+# Taichi 1.7 confuses: co.params, st.counters)
+ContactGridArgs = ti.types.argpack(
+    radius=Scalars1, gap=Ints1, seg_cell=IVec3s1, seg_bucket=Ints1, bucket_count=Ints1,
+    bucket_start=Ints1, cursor=Ints1, sorted_seg=Ints1, grid_params=Scalars1, grid_counters=Ints1,
+    delta=Vec3s2, hits=Ints2)
 
 # what a pair pass does with the pairs it finds
 MEASURE, RESOLVE, RECORD = 0, 1, 2
 # slots of the float parameter array
-# (PAIR_COUNT repeats counters[PAIRS] as a float, so a pass reads back one small array)
-MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT = 0, 1, 2, 3, 4
+# (PAIR_COUNT repeats counters[PAIRS] as a float, so a pass reads back one small array; DONE,
+# and DEPTH_MAX belong to the fused step, step.advance_with_strand_contact)
+MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT, DONE, DEPTH_MAX = range(7)
+STEP_VALUES = 8  # params[8:23]: the fused step's scalars (step.write_step_values)
 # slots of the integer counter array
 PAIRS, CANDIDATES, RECORDED = 0, 1, 2
 
@@ -130,7 +140,7 @@ def cell_hash(c, mask):
 
 @ti.func
 def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), seg_cell: ti.template(),
-           seg_bucket: ti.template(), bucket_count: ti.template(), mask):
+           seg_bucket: ti.template(), bucket_count: ti.template(), mask, active):
     """Bin every segment by its midpoint into a cubic cell of side L + 2 R_max (L the longest
     current segment, R_max the largest radius; params[CELL] [m]) and count segments per hash
     bucket. Two segments within r_a + r_b of each other have midpoints less than
@@ -139,13 +149,13 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
     stretched segments. Padding slots get bucket -1."""
     n_seg = x.shape[1] - 1
     params[MAX_LENGTH] = 0.0
-    for h in range(bucket_count.shape[0]):
+    for h in range(bucket_count.shape[0] * active):
         bucket_count[h] = 0
-    for s, j in ti.ndrange(x.shape[0], n_seg):
+    for s, j in ti.ndrange(x.shape[0] * active, n_seg):
         if j + 1 < node_count[s]:
             ti.atomic_max(params[MAX_LENGTH], (x[s, j + 1] - x[s, j]).norm())
     params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
-    for s, j in ti.ndrange(x.shape[0], n_seg):
+    for s, j in ti.ndrange(x.shape[0] * active, n_seg):
         g = s * n_seg + j
         seg_bucket[g] = -1
         if j + 1 < node_count[s]:
@@ -157,22 +167,22 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
 
 
 @ti.func
-def _prefix(bucket_count: ti.template(), bucket_start: ti.template(), cursor: ti.template()):
+def _prefix(bucket_count: ti.template(), bucket_start: ti.template(), cursor: ti.template(), active):
     """bucket_start[h] = segments in buckets before h (exclusive scan, [T + 1]); cursor = a copy
     for _fill. Serial: T is a few times the segment count and the loop is trivial."""
     bucket_start[0] = 0
     ti.loop_config(serialize=True)
-    for h in range(bucket_count.shape[0]):
+    for h in range(bucket_count.shape[0] * active):
         bucket_start[h + 1] = bucket_start[h] + bucket_count[h]
-    for h in range(bucket_count.shape[0]):
+    for h in range(bucket_count.shape[0] * active):
         cursor[h] = bucket_start[h]
 
 
 @ti.func
-def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.template()):
+def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.template(), active):
     """Counting sort: sorted_seg[bucket_start[h] ...] lists the segments of bucket h (in no
     particular order)."""
-    for g in range(seg_bucket.shape[0]):
+    for g in range(seg_bucket.shape[0] * active):
         h = seg_bucket[g]
         if h >= 0:
             sorted_seg[ti.atomic_add(cursor[h], 1)] = g
@@ -193,7 +203,7 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                x_prev: ti.template(), inv_mass: ti.template(), seg_cell: ti.template(),
                seg_bucket: ti.template(), bucket_start: ti.template(), sorted_seg: ti.template(), mask,
                friction, params: ti.template(), counters: ti.template(), delta: ti.template(),
-               hits: ti.template(), record: ti.template()):
+               hits: ti.template(), record: ti.template(), active):
     """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
     non-excluded segments closer than r_a + r_b with at least one free node is a contact.
     counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
@@ -214,10 +224,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     counters[RECORDED] = 0
     params[MAX_PENETRATION] = 0.0
     if ti.static(mode == RESOLVE):
-        for s, i in ti.ndrange(x.shape[0], x.shape[1]):
+        for s, i in ti.ndrange(x.shape[0] * active, x.shape[1]):
             delta[s, i] = vec3(0.0)
             hits[s, i] = 0
-    for sa, ja in ti.ndrange(x.shape[0], n_seg):
+    for sa, ja in ti.ndrange(x.shape[0] * active, n_seg):
         ga = sa * n_seg + ja
         if seg_bucket[ga] >= 0:
             a0 = x[sa, ja]
@@ -320,10 +330,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
 
 @ti.func
 def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.template(), hits: ti.template(),
-           x: ti.template(), dx: ti.template()):
+           x: ti.template(), dx: ti.template(), active):
     """x += delta / hits, dx += the same, on free nodes with contacts: the Jacobi average of the
     corrections a node received (their sum would overshoot where several pairs push a node)."""
-    for s, i in ti.ndrange(x.shape[0], x.shape[1]):
+    for s, i in ti.ndrange(x.shape[0] * active, x.shape[1]):
         if i < node_count[s] and hits[s, i] > 0 and inv_mass[s, i] > 0.0:
             move = delta[s, i] / hits[s, i]
             x[s, i] += move
@@ -339,13 +349,29 @@ def _contact_pass(mode: ti.template(), with_friction: ti.template(), node_count:
     """One contact pass in one launch (launch overhead, not the work, dominates small scenes):
     the stages _count, _prefix, _fill, _pair_pass and, resolving, _apply, each a top-level
     loop (Taichi runs a kernel's top-level loops one after another)."""
-    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask)
-    _prefix(bucket_count, bucket_start, cursor)
-    _fill(seg_bucket, cursor, sorted_seg)
+    contact_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, dx,
+                 seg_cell, seg_bucket, bucket_count, bucket_start, cursor, sorted_seg, mask, friction,
+                 params, counters, delta, hits, record, 1)
+
+
+@ti.func
+def contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti.template(),
+                 radius: ti.template(), gap: ti.template(), self_contact, x: ti.template(),
+                 x_prev: ti.template(), inv_mass: ti.template(), dx: ti.template(), seg_cell: ti.template(),
+                 seg_bucket: ti.template(), bucket_count: ti.template(), bucket_start: ti.template(),
+                 cursor: ti.template(), sorted_seg: ti.template(), mask, friction, params: ti.template(),
+                 counters: ti.template(), delta: ti.template(), hits: ti.template(), record: ti.template(),
+                 active):
+    """The stages of one pass as top-level loops of the calling kernel; active = 0 runs every
+    loop over nothing (a pass a fused step no longer needs: see step.advance_with_strand_contact)."""
+    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask, active)
+    _prefix(bucket_count, bucket_start, cursor, active)
+    _fill(seg_bucket, cursor, sorted_seg, active)
     _pair_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, seg_cell,
-               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record)
+               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record,
+               active)
     if ti.static(mode == RESOLVE):
-        _apply(node_count, inv_mass, delta, hits, x, dx)
+        _apply(node_count, inv_mass, delta, hits, x, dx, active)
     params[PAIR_COUNT] = ti.cast(counters[PAIRS], float)
 
 
@@ -409,8 +435,8 @@ class ContactGrid:
         self.node_count = arrays.ints((self.S,), node_counts)
         self.radius = arrays.scalars((self.S,), radius)
         self.gap = arrays.ints((self.S,), 2)
-        self.params = arrays.scalars((5,))
-        self.params.from_numpy(np.array([0.0, radius.max(), 0.0, 0.0, 0.0], dtype=arrays.np_float()))
+        self.params = arrays.scalars((STEP_VALUES + 16,))
+        self.params.from_numpy(np.array([0.0, radius.max()] + [0.0] * (STEP_VALUES + 14), dtype=arrays.np_float()))
         self.counters = arrays.ints((3,), 0)
         self.seg_cell = ti.Vector.ndarray(3, ti.i32, (self.G,))
         self.seg_bucket = arrays.ints((self.G,), -1)
@@ -422,6 +448,7 @@ class ContactGrid:
         self.hits = arrays.ints((self.S, self.N), 0)
         self.record = arrays.ints((1, 2), 0)  # grown by contact_pairs when needed
         self._ones = None  # inv_mass of 1 everywhere, for calls without masses
+        self._args = None
 
         self.neighbour_gap = None
         if rest_length is not None:
@@ -467,6 +494,25 @@ class ContactGrid:
         self.last_pairs = int(round(float(params[PAIR_COUNT])))
         self.last_max_penetration = float(params[MAX_PENETRATION])
         self.cell_size = float(params[CELL])
+
+    def args(self):
+        """The grid's arrays as a ContactGridArgs bundle (built once)."""
+        if getattr(self, "_args", None) is None:
+            self._args = ContactGridArgs(
+                radius=self.radius, gap=self.gap, seg_cell=self.seg_cell, seg_bucket=self.seg_bucket,
+                bucket_count=self.bucket_count, bucket_start=self.bucket_start, cursor=self.cursor,
+                sorted_seg=self.sorted_seg, grid_params=self.params, grid_counters=self.counters, delta=self.delta,
+                hits=self.hits)
+        return self._args
+
+    def deepest_since_reset(self, reset: bool = False) -> float:
+        """The largest depth [m] the last contact pass of a fused step found, over the steps since
+        the last reset (step.advance_with_strand_contact)."""
+        params = self.params.to_numpy()
+        if reset:
+            params[DEPTH_MAX] = 0.0
+            self.params.from_numpy(params)
+        return float(params[DEPTH_MAX])
 
     @property
     def last_candidates(self) -> int:
@@ -518,15 +564,16 @@ def contact_grid(settings, model) -> ContactGrid:
                        settings.self_contact, model.groom.max_nodes, rest_length=model.rest_length)
 
 
-def resolve_strand_contacts(grid: ContactGrid, settings, model, state, project) -> float:
-    """The strand-contact stage of one step, after the projection stage: up to
-    settings.iterations contact passes, each followed by `project()` (the length projection with
-    the head contacts again), stopping after the pass whose contacts were all within
-    settings.tolerance of the radius sum before it. Returns the largest depth [m] the last pass
-    found (before correcting it)."""
+def resolve_strand_contacts(grid: ContactGrid, settings, model, state, project, passes=None) -> float:
+    """The strand-contact stage of one step, after the projection stage: up to `passes`
+    (default settings.iterations) contact passes, each followed by `project()` (the length
+    projection with the head contacts again), stopping after the pass whose contacts were all
+    within settings.tolerance of the radius sum before it. model, state: objects with the
+    arrays x, dx, x_prev (state) and inv_mass (model). Returns the largest depth [m] the last
+    pass found (before correcting it)."""
     allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
     depth = 0.0
-    for _ in range(settings.iterations):
+    for _ in range(settings.iterations if passes is None else passes):
         if grid.resolve(state.x, state.dx, state.x_prev, model.inv_mass) == 0:
             return 0.0
         depth = grid.last_max_penetration
