@@ -11,14 +11,23 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
 - The rod is inextensible and unshearable (Kmoch's model): only bending, twist, gravity,
   loads and contact. A rod that starts stretched (`rest_arc_length`) cannot be stretched
   here, so it starts at its unstretched length: every element keeps the direction it has in
-  the scenario and gets length L / n_elements, walked from the held end. Unstretched rods
+  the scenario and gets length L / n_elements, walked from a clamped root, or both ways from
+  the rod's middle node otherwise (two crossing ropes still cross there). Unstretched rods
   whose polyline chords fall short of L / n_elements get the same treatment, so the strand's
   length is always the scenario's unstretched length.
-- Held ends: a clamped start is taichi_hair's clamped root (node 0 and the clamp's material
-  frame held, bending from node 0), a pinned start is `root="pinned"`; a pinned end is `add_pin` on the
-  last node, a clamped end `add_pin(..., clamp=True)` on the last edge. A rod whose start is
-  free and end held is simulated from its end (nodes reversed and turned back on output). A
-  driven clamped end (`Motion`) becomes the head motion of that strand's root.
+- Ends: the root is a held end (the driven one if its motion moves it, rather than only
+  turning it about its axis); a rod whose start is free and end held is simulated from its end
+  (nodes reversed and turned back on output). A clamped root is taichi_hair's clamped root
+  (node 0 and the clamp's material frame held, bending from node 0); a pinned root is a pin on
+  node 0 of a free strand (`root="free"`: held in place, free to turn and to spin; the implicit
+  solver, which needs a held root, takes `root="pinned"`); both ends free is a free strand. A
+  pinned tip is `add_pin` on the last node; a clamped tip is a clip on the last edge that holds
+  its material frame (`hold_twist=True`), turned each frame by `turn_pin` when its motion turns
+  it about its axis, and a slider (`slide=axis`) when it slides. A driven root's motion is the
+  head motion.
+- Contact between rods: several rods, or a scenario whose rods can reach themselves
+  (`self_contact`), get `StrandContact` (radius = each rod's, the largest rod friction,
+  self-contact as the scenario says).
 - Loads are constant user forces on the end node, gravity is the simulator's gravity.
 - Planes and cylinders are `Plane` and `Capsule` colliders in the world with margin = the
   rod's radius and the larger of the two Coulomb coefficients (taichi_hair's position-based
@@ -34,9 +43,10 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
   at t = 0 so that d1 starts at `Rod.directors`: the same material line, carried by the
   material frame.
 
-Not supported (NotImplementedError, reported "unsupported"): a rod with both ends free, an
-end that slides along an axis, two driven ends on one rod, a driven end that is not the root
-after the rule above, ends held without `Simulator.add_pin` (older taichi_hair).
+Not supported (NotImplementedError, reported "unsupported"): a root that slides, two driven ends
+that both move, rods clamped and rods pinned or free at their roots in one scenario (one root
+mode per simulator), ends held without twist-holding clips (older taichi_hair); with the implicit
+solver, free rods, clamped tips and rod contact.
 """
 
 from __future__ import annotations
