@@ -186,3 +186,50 @@ def test_fused_contact_step_matches_the_staged_one():
         results.append(sim.positions())
         assert sim.stats()["strand_contact_depth_max"] > 0  # they touched
     assert np.abs(results[0] - results[1]).max() < 1e-12
+
+
+def test_strand_contact_code_compiles_only_when_a_scene_asks_for_it():
+    """In a fresh process: a scene without strand contact compiles no contact kernel and no
+    clip stage; one with it compiles the fused contact step once."""
+    import json
+    import subprocess
+    import sys
+    import textwrap
+    code = textwrap.dedent("""
+        import json, warnings, numpy as np, taichi_hair as th
+        from taichi_hair.solver import step, strand_contact
+        warnings.simplefilter("ignore")
+        th.init(precision="float64")
+        groom = th.Groom.straight(length=0.1, n_nodes=11, roots=[[0, 0, 0.1], [0.01, 0, 0.1]],
+                                  directions=[[0, 0, 1], [0, 0, 1]])
+        def compiled():
+            return {"contact_step": len(step.advance_with_strand_contact._primal.mapper.mapping),
+                    "contact_pass": len(strand_contact._contact_pass._primal.mapper.mapping),
+                    "clips": any(v["clips"] for v in step.compiled_variants())}
+        th.Simulator(groom, th.Material()).step(3)
+        bare = compiled()
+        th.Simulator(groom, th.Material(), strand_contact=th.StrandContact()).step(3)
+        print(json.dumps({"bare": bare, "contact": compiled()}))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout[out.stdout.index("{"):])
+    assert result["bare"] == {"contact_step": 0, "contact_pass": 0, "clips": False}
+    assert result["contact"]["contact_step"] == 1
+
+
+def test_strand_contact_beside_hair_interaction():
+    """Guides of a bundle with the volumetric hair-hair grid and strand contact together (the
+    staged step runs both): the guides stay a diameter apart while the bundle swings."""
+    roots = [[0.0, 0.004 * i, 0.1 + 0.0025 * i] for i in range(4)]  # stacked, 2.5 mm apart in z
+    tilt = [[1, 0.1 if i % 2 else -0.1, 0] for i in range(4)]  # crossing their neighbours
+    groom = th.Groom.straight(length=0.1, n_nodes=11, roots=roots, directions=tilt)
+    hair = th.Material(radius=1e-3, youngs_modulus=1e7, shear_modulus=3e6)
+    sim = simulator(groom, hair, dt=1e-3, drag=1e-3, hair_interaction=th.HairInteraction(cell_size=0.01),
+                    strand_contact=th.StrandContact(friction=0.2))
+    for _ in range(10):
+        sim.step(10)
+        assert sim.strand_contact_depth() <= 0.05 * 2 * hair.radius
+    assert sim.stats()["strand_contact_depth_max"] > 0  # they did press on each other
+    x = sim.positions()
+    assert np.all(np.isfinite(x)) and x[:, -1, 2].max() < 0.1 - 0.03  # they fell and swung
