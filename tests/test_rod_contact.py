@@ -169,23 +169,29 @@ def test_bad_strand_contact_input_names_the_parameter():
         simulator(crossing_ropes(), ROPE, strand_contact=th.StrandContact(), integrator="implicit")
 
 
-def test_fused_contact_step_matches_the_staged_one():
-    """The one-launch step (step.advance_with_strand_contact) and the staged one (a launch per
-    stage and per contact pass, used with timers) run the same passes: same positions."""
+def test_fused_contact_steps_match_the_staged_one():
+    """Three drivers run the same passes and give the same positions: many steps per launch on
+    one thread (a small scene), a launch per step (step.advance_with_strand_contact, forced by
+    small_contact_nodes = 0), and a launch per stage and per contact pass (with timers)."""
     import contextlib
     groom = crossing_ropes(n=21)
     results = []
-    for staged in (False, True):
+    for driver in ("small", "fused", "staged"):
         sim = simulator(groom, ROPE, dt=1e-3, root="free", drag=0.5,
                         strand_contact=th.StrandContact(friction=0.2))
+        if driver == "fused":
+            sim.small_contact_nodes = 0
         ids = sim.add_pin([0, 0, 1, 1], [0, -1, 0, -1])
         sim.move_pin(ids[2:], groom.strand(1)[[0, -1]] - [0.0, 0.0, 0.04])
-        timers = (lambda name: contextlib.nullcontext()) if staged else None
-        for _ in range(150):
-            sim.step(1, timers=timers)
+        timers = (lambda name: contextlib.nullcontext()) if driver == "staged" else None
+        for _ in range(15):
+            sim.step(10, timers=timers)
         results.append(sim.positions())
         assert sim.stats()["strand_contact_depth_max"] > 0  # they touched
-    assert np.abs(results[0] - results[1]).max() < 1e-12
+    # parallel atomic sums round in a different order each run, and contact amplifies that over
+    # 150 steps: agreement to 1e-7 m (a missing or reordered pass moves nodes by millimetres)
+    assert np.abs(results[0] - results[2]).max() < 1e-7
+    assert np.abs(results[1] - results[2]).max() < 1e-7
 
 
 def test_strand_contact_code_compiles_only_when_a_scene_asks_for_it():
@@ -203,7 +209,8 @@ def test_strand_contact_code_compiles_only_when_a_scene_asks_for_it():
         groom = th.Groom.straight(length=0.1, n_nodes=11, roots=[[0, 0, 0.1], [0.01, 0, 0.1]],
                                   directions=[[0, 0, 1], [0, 0, 1]])
         def compiled():
-            return {"contact_step": len(step.advance_with_strand_contact._primal.mapper.mapping),
+            return {"contact_step": len(step.advance_with_strand_contact._primal.mapper.mapping)
+                                    + len(step.advance_small_with_strand_contact._primal.mapper.mapping),
                     "contact_pass": len(strand_contact._contact_pass._primal.mapper.mapping),
                     "clips": any(v["clips"] for v in step.compiled_variants())}
         th.Simulator(groom, th.Material()).step(3)

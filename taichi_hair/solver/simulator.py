@@ -27,7 +27,8 @@ from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   place_roots, project_once, seed_history, step_with_strand_contact, strand_mechanical_energy)
+                   SMALL_CONTACT_SCENE, place_roots, project_once, seed_history, step_with_strand_contact,
+                   steps_with_strand_contact, strand_mechanical_energy)
 
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
@@ -169,6 +170,9 @@ class Simulator:
         self.strand_contact = strand_contact
         self._contact_grid = None if strand_contact is None else contact_grid(strand_contact, self.model)
         self._contact_depth = 0.0  # the largest depth a last contact pass found, since the stats reset
+        # strand contact in scenes of at most this many nodes: many steps per launch, one thread
+        # (step.advance_small_with_strand_contact); larger: a launch per step, parallel
+        self.small_contact_nodes = SMALL_CONTACT_SCENE
 
     @classmethod
     def from_scene(cls, scene, dt: float = 1e-3, **options) -> "Simulator":
@@ -339,14 +343,20 @@ class Simulator:
             self._history_h = h
         remaining = total = n * self.substeps
         staged = timers is not None or self.interaction is not None or self.strand_contact is not None
+        # a small scene with strand contact runs many steps per launch on one thread
+        small_contact = (self.strand_contact is not None and timers is None and self.interaction is None
+                         and self.model.groom.n_strands * self.model.groom.max_nodes <= self.small_contact_nodes)
         while remaining > 0:
-            count = 1 if staged else min(remaining, MAX_STEPS_PER_LAUNCH)
+            count = 1 if staged and not small_contact else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
             self.control.time = self.time
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
-            if self.strand_contact is not None and timers is None and self.interaction is None:
+            if small_contact:
+                steps_with_strand_contact(self._bundles, self.plan, self.control, h, count, self._contact_grid,
+                                          self.strand_contact, moving, pins)
+            elif self.strand_contact is not None and timers is None and self.interaction is None:
                 depth = step_with_strand_contact(self._bundles, self.plan, self.control, h, self._contact_grid,
                                                  self.strand_contact, pins)
                 self._contact_depth = max(self._contact_depth, depth)

@@ -713,17 +713,96 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
 
 
 @ti.kernel
+def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.template(), md: ModelArgs,
+                                      st: StateArgs, dr: DriveArgs, co: ContactArgs, cg: ContactGridArgs):
+    """n_steps steps of h with strand-strand contact in one launch, on one thread: for scenes
+    small enough (SMALL_CONTACT_SCENE nodes) that the launches of a step per launch, not the
+    work, would set the cost. Each step: the stages up to the projection for every strand, then
+    up to `iterations` contact passes each followed by the projection stage, stopping after a
+    pass that found nothing or nothing deeper than allowed, then velocities, frames and twist.
+    Head poses and pins as in advance_strands (fl.moving_head: one pose per step). counters[s,
+    BAD] = the step where a strand failed (the launch stops there), -1 if none. Scalars in
+    grid_params[STEP_VALUES:] (write_step_values)."""
+    sc = StepScalars(h=cg.grid_params[STEP_VALUES + 0], t0=cg.grid_params[STEP_VALUES + 1],
+                     drag=cg.grid_params[STEP_VALUES + 2], max_speed=cg.grid_params[STEP_VALUES + 3],
+                     projection_tol=cg.grid_params[STEP_VALUES + 4],
+                     projection_iterations=ti.cast(cg.grid_params[STEP_VALUES + 5], ti.i32),
+                     twist_tol=cg.grid_params[STEP_VALUES + 6],
+                     twist_iterations=ti.cast(cg.grid_params[STEP_VALUES + 7], ti.i32),
+                     n_analytic=ti.cast(cg.grid_params[STEP_VALUES + 8], ti.i32),
+                     pin_f0=cg.grid_params[STEP_VALUES + 9], pin_df=cg.grid_params[STEP_VALUES + 10])
+    self_contact = ti.cast(cg.grid_params[STEP_VALUES + 11], ti.i32)
+    mask = ti.cast(cg.grid_params[STEP_VALUES + 12], ti.i32)
+    friction = cg.grid_params[STEP_VALUES + 13]
+    allowed = cg.grid_params[STEP_VALUES + 14]
+    iterations = ti.cast(cg.grid_params[STEP_VALUES + 15], ti.i32)
+    n_steps = ti.cast(cg.grid_params[STEP_VALUES + 16], ti.i32)
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+    ti.loop_config(serialize=True)
+    for k in range(n_steps):
+        failed = 0
+        for s in range(st.x.shape[0]):
+            for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+                if stage(s, k, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = k
+                    failed = 1
+        depth = 0.0
+        for _ in range(iterations):
+            contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x,
+                         st.x_prev, md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count,
+                         cg.bucket_start, cg.cursor, cg.sorted_seg, mask, friction, cg.grid_params,
+                         cg.grid_counters, cg.delta, cg.hits, cg.hits, 1)
+            if cg.grid_counters[PAIRS] == 0:
+                break
+            depth = cg.grid_params[MAX_PENETRATION]
+            for s in range(st.x.shape[0]):
+                if stage_project(s, k, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = k
+                    failed = 1
+            if depth <= allowed:
+                break
+        cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], depth)
+        for s in range(st.x.shape[0]):
+            if stage_frames_twist(s, k, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = k
+                failed = 1
+        if failed:
+            break
+
+
+@ti.kernel
 def write_step_values(params: Scalars1, h: float, t0: float, drag: float, max_speed: float,
                       projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
                       twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
-                      self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float):
+                      self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float, iterations: ti.i32,
+                      n_steps: ti.i32):
     """params[STEP_VALUES:] = StepScalars' fields in order, then self_contact, the hash mask,
-    friction and the allowed depth [m] (advance_with_strand_contact reads them)."""
+    friction, the allowed depth [m], the contact passes per step and the steps of the launch
+    (the fused kernels read them)."""
     values = ti.Vector([h, t0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
-                        twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed],
-                       dt=float)
-    for i in ti.static(range(15)):
+                        twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed,
+                        iterations, n_steps], dt=float)
+    for i in ti.static(range(17)):
         params[STEP_VALUES + i] = values[i]
+
+
+SMALL_CONTACT_SCENE = 4096  # nodes: up to here a launch runs many contact steps on one thread
+
+
+def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, grid,
+                              settings, moving_head: bool, pins=None) -> None:
+    """n_steps steps of h with strand contact in one launch on one thread
+    (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
+    pins as in `advance`."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
+    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
+                        pins=pins is not None, clips=clips)
+    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
+                      grid.T - 1, settings.friction, allowed, settings.iterations, n_steps)
+    advance_small_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state,
+                                      bundles.drive(arrays_), bundles.contacts, grid.args())
 
 
 def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, grid, settings,
@@ -737,7 +816,8 @@ def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: f
     flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None, clips=clips)
     allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
     scalars = step_scalars(plan, control, h, fraction)
-    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction, allowed)
+    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction, allowed,
+                      settings.iterations, 1)
     drive = bundles.drive(arrays_)
     advance_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state, drive,
                                 bundles.contacts, grid.args())

@@ -46,7 +46,7 @@ MEASURE, RESOLVE, RECORD = 0, 1, 2
 # (PAIR_COUNT repeats counters[PAIRS] as a float, so a pass reads back one small array; DONE,
 # and DEPTH_MAX belong to the fused step, step.advance_with_strand_contact)
 MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT, DONE, DEPTH_MAX = range(7)
-STEP_VALUES = 8  # params[8:23]: the fused step's scalars (step.write_step_values)
+STEP_VALUES = 8  # params[8:25]: the fused step's scalars (step.write_step_values)
 # slots of the integer counter array
 PAIRS, CANDIDATES, RECORDED = 0, 1, 2
 
@@ -435,8 +435,8 @@ class ContactGrid:
         self.node_count = arrays.ints((self.S,), node_counts)
         self.radius = arrays.scalars((self.S,), radius)
         self.gap = arrays.ints((self.S,), 2)
-        self.params = arrays.scalars((STEP_VALUES + 16,))
-        self.params.from_numpy(np.array([0.0, radius.max()] + [0.0] * (STEP_VALUES + 14), dtype=arrays.np_float()))
+        self.params = arrays.scalars((STEP_VALUES + 17,))
+        self.params.from_numpy(np.array([0.0, radius.max()] + [0.0] * (STEP_VALUES + 15), dtype=arrays.np_float()))
         self.counters = arrays.ints((3,), 0)
         self.seg_cell = ti.Vector.ndarray(3, ti.i32, (self.G,))
         self.seg_bucket = arrays.ints((self.G,), -1)
