@@ -1,13 +1,8 @@
 """Contact stage: push nodes out of colliders and hands, with friction. Runs inside the fast
-projection (see step.strand_project), alternating with the inextensibility solve: every pass
-pushes nodes out along the normal and adds the push to the node's normal correction of the step
-so far (kept in v[s, i].x, scratch until the velocity stage); once the projection has
-converged, one friction pass shrinks each touching node's slip since the step began by friction
-x that whole correction (Coulomb over the step: docs/model.md, "Collisions")."""
+projection (see step.strand_project), alternating with the inextensibility solve."""
 
 import taichi as ti
 
-from ..rods.arrays import vec3
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -31,28 +26,18 @@ def from_head(head: ti.template(), k, p):
     return head_rotate(head, k, p) + head[k, 3]
 
 
-PUSH, FRICTION = 0, 1  # what a contact pass does (strand_collide's mode)
-TOUCHING = 1e-6  # relative to the margin: a node this close to it after the pushes is in contact
-
-
 @ti.func
-def resolve_contact(p, p_prev, d, n, margin, friction, budget, mode: ti.template()):
-    """mode PUSH: move p (distance d [m], outward normal n, both in the collider's frame) out to
-    the margin; returns (p, the push [m]). mode FRICTION, for a node at the margin: shrink its
-    slip along the surface since p_prev by friction x budget (the step's normal correction,
-    Coulomb), all of it if shorter; returns (p, 0)."""
-    moved = p
-    push = 0.0
-    if ti.static(mode == PUSH):
-        push = margin - d
-        moved = p + push * n
-    else:
-        slip = p - p_prev
-        tangential = slip - slip.dot(n) * n
-        length = tangential.norm()
-        if length > 1e-12:
-            moved -= ti.min(1.0, friction * budget / length) * tangential
-    return moved, push
+def resolve_contact(p, p_prev, d, n, margin, friction):
+    """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin
+    and shrink its slip along the surface since p_prev by friction x push depth (Coulomb)."""
+    push = margin - d
+    moved = p + push * n
+    slip = moved - p_prev
+    tangential = slip - slip.dot(n) * n
+    length = tangential.norm()
+    if length > 1e-12:
+        moved -= ti.min(1.0, friction * push / length) * tangential
+    return moved
 
 
 @ti.func
@@ -66,15 +51,6 @@ def collider_frame(on_head, head: ti.template(), now, prev, p, p_prev):
     return local, local_prev
 
 
-@ti.func
-def in_contact(d, margin, mode: ti.template()):
-    """PUSH: inside the margin; FRICTION: at it (after the pushes), within TOUCHING."""
-    inside = d < margin
-    if ti.static(mode == FRICTION):
-        inside = d < margin * (1.0 + TOUCHING)
-    return inside
-
-
 def root_keeps_collider(root_distance, margin):
     """The rule strand_collide applies on the device, for host-side checks: a strand collides
     with a collider unless its root lies inside it by more than the collider's margin [m]."""
@@ -83,7 +59,7 @@ def root_keeps_collider(root_distance, margin):
 
 @ti.func
 def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.template(), md: ti.template(),
-                   st: ti.template(), dr: ti.template(), co: ti.template(), mode: ti.template()):
+                   st: ti.template(), dr: ti.template(), co: ti.template()):
     """Resolve every free node of strand s against the colliders (co: analytic table, optional
     distance grid; fl.mesh), and the hands (fl.touch). Head-attached shapes are handled in head
     coordinates so their friction sees the motion relative to the moving head (head poses now /
@@ -92,9 +68,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     that strand: pushing its nodes out would fight the held root every step (a groom rooted
     inside a neck capsule, say). A root on the surface or within the margin keeps the collider;
     the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
-    node's step displacement dx becomes x - x_prev. mode PUSH pushes nodes inside a margin out
-    and adds the push to v[s, i].x; mode FRICTION applies friction to the nodes at a margin
-    (resolve_contact). Returns the number of nodes acted on."""
+    node's step displacement dx becomes x - x_prev. Returns the number of pushes."""
     pushes = 0
     x, x_prev, dx, head = ti.static(st.x, st.x_prev, st.dx, dr.head)  # aliases
     root = x[s, 0]
@@ -109,10 +83,8 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
                     d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1],
                                              co.params[c][0], local)
-                    if in_contact(d, co.params[c][1], mode):
-                        local, push = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2],
-                                                      st.v[s, i].x, mode)
-                        st.v[s, i] += vec3(push, 0.0, 0.0)
+                    if d < co.params[c][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2])
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
@@ -128,10 +100,8 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 if md.inv_mass[s, i] > 0.0:
                     local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
                     d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
-                    if in_contact(d, co.sdf_meta[1][1], mode):
-                        local, push = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2],
-                                                      st.v[s, i].x, mode)
-                        st.v[s, i] += vec3(push, 0.0, 0.0)
+                    if d < co.sdf_meta[1][1]:
+                        local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
@@ -147,11 +117,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         local = x[s, i] - centre
                         local_prev = x_prev[s, i] - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
-                        if in_contact(d, dr.tools[k][2], mode):
-                            moved, push = resolve_contact(local, local_prev, d, n, dr.tools[k][2], dr.tools[k][3],
-                                                          st.v[s, i].x, mode)
-                            st.v[s, i] += vec3(push, 0.0, 0.0)
-                            x[s, i] = centre + moved
+                        if d < dr.tools[k][2]:
+                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
+                                                               dr.tools[k][3])
                             dx[s, i] = x[s, i] - x_prev[s, i]
                             pushes += 1
     return pushes

@@ -232,7 +232,6 @@ class Simulator:
         load_poses(c, np.stack([pose_rows(*self._head), pose_rows(*self._head)]))
         load_tools(c, self.touch, np.full(2, self.time))
         st.x_prev.copy_from(st.x)
-        velocities = st.v.to_numpy()  # the projection stage uses v as scratch (collisions.py)
         # A strand groomed into the head may need many more iterations than one step allows;
         # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
         for _ in range(INITIAL_PROJECTION_ROUNDS):
@@ -248,7 +247,6 @@ class Simulator:
                           f"{residual[stuck].max():.3g}); check the groom against the head",
                           RuntimeWarning, stacklevel=3)
         st.x_prev.copy_from(st.x)
-        st.v.from_numpy(velocities)
         self._reset_counters()
 
     def _tighten_bound_to_start(self, strict, stability_factor):

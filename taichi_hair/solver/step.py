@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2, Vec4s1,
                            Vec4s2, vec3)
-from .collisions import FRICTION, PUSH, head_rotate, strand_collide
+from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -134,7 +134,6 @@ class StageFlags:
     root_mode: int
     implicit: bool = False
     clips: bool = False
-    contact_friction: bool = True  # False: the initial contact solve, which is not a step
 
 
 @functools.lru_cache(maxsize=256)
@@ -345,12 +344,9 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     it = 0
     res = 0.0
     previous = 0.0
-    if ti.static(fl.contacts):
-        for i in range(n):  # the contacts' normal correction of this step (collisions.py)
-            st.v[s, i] = vec3(0.0)
     while True:
         if ti.static(fl.contacts):
-            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, PUSH)
+            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
         res = 0.0
         b = slider_vector(s, n, fl, dr)
@@ -378,8 +374,6 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
             break
         solve_inextensibility(s, n, fl, md, st, dr)
         it += 1
-    if ti.static(fl.contacts and fl.contact_friction):
-        strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, FRICTION)
     return it, res
 
 
@@ -847,7 +841,7 @@ def clear_bad(counters: Ints2):
 def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) -> None:
     """The projection stage alone, contacts on and pins off (head pose 0 -> 1): the initial
     contact solve."""
-    flags = stage_flags(plan, contacts=True, pins=False, contact_friction=False)
+    flags = stage_flags(plan, contacts=True, pins=False)
     clear_bad(bundles.state.counters)
     k = STAGE_NAMES.index("projection")
     run_stages(k, k + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
