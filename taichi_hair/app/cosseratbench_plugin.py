@@ -132,9 +132,8 @@ class _Strand:
                 self.axis[e] = (motion.axis if motion.slides_along is not None
                                 else tangent[e] / np.linalg.norm(tangent[e]))
         turns = {e: rod.motion(e) is not None and _twist_only(rod.motion(e), self.axis[e]) for e in End}
-        self.free_root = start is EndCondition.FREE and end is EndCondition.FREE
-        if start is EndCondition.FREE or end is EndCondition.FREE:
-            self.reversed = start is EndCondition.FREE and not self.free_root
+        if start is EndCondition.FREE or end is EndCondition.FREE:  # both free: a free root, as given
+            self.reversed = start is EndCondition.FREE and end is not EndCondition.FREE
         else:  # both held: the root is the end a head motion must carry
             self.reversed = rod.end_motion is not None and not turns[End.END]
         self.root_end, self.tip_end = (End.END, End.START) if self.reversed else (End.START, End.END)
@@ -147,7 +146,7 @@ class _Strand:
             raise NotImplementedError("a rod driven at both ends, or a driven end that moves rather than "
                                       "turns about its axis away from the root: taichi_hair drives one root "
                                       "and turns clips")
-        if self.motion is not None and rod.motion(self.tip_end) is not None:
+        if self.motion is not None and self.tip_motion is not None:
             raise NotImplementedError("a rod driven at both ends: taichi_hair drives only the root")
         d1 = rod.directors(n_elements)
         if self.reversed:

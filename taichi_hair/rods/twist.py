@@ -380,7 +380,7 @@ def strand_held_twist_forces(s, clamp: ti.template(), x: ti.template(), node_cou
     k = stiffness[s]
     first = ti.static(first_node(clamp))
     for c in range(first, n - 1):
-        if clip[s, c, 1].z > 0.0:
+        if edge_twist_held(s, c, True, clip):
             _, gb, _ = edge_bend_theta_terms(s, c, n, first, theta[s, c], bishop_u, bishop_v, kb,
                                              rest_kappa, voronoi, k)
             gt, _ = twist_terms(s, c, n, first, theta, rest_twist, voronoi, k.z)

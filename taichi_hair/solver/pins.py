@@ -43,6 +43,7 @@ import taichi as ti
 from ..rods import arrays
 from .collisions import from_head, head_rotate
 from ..rods.frames import parallel_transport
+from ..rods.twist import edge_twist_held
 
 FREE, WORLD, HEAD = 0, 1, 2
 ATTACH = {"world": WORLD, "head": HEAD}
@@ -53,7 +54,6 @@ ATTACH = {"world": WORLD, "head": HEAD}
 # it slows the linear convergence only by a factor HELD_DAMPING per iteration. The implicit
 # step damps its length rows by the same amount.
 HELD_DAMPING = 1e-6
-PI = 3.141592653589793
 
 
 @ti.func
@@ -90,7 +90,7 @@ def strand_hold_clip_twist(s, fraction, node_count: ti.template(), pin_mode: ti.
     by its drive angle about the edge) in the edge's Bishop frame, on the branch nearest the
     edge's previous angle (so a clip turned through 2 pi twists the strand through 2 pi)."""
     for c in range(node_count[s] - 1):
-        if clip[s, c, 1].z > 0.0:
+        if edge_twist_held(s, c, True, clip):
             d = clip[s, c, 0]
             if pin_mode[s, c] == HEAD:
                 d = head_rotate(head, now, d)
@@ -101,7 +101,7 @@ def strand_hold_clip_twist(s, fraction, node_count: ti.template(), pin_mode: ti.
             phi = clip_fraction_angle(clip, s, c, fraction)
             d = d * ti.cos(phi) + t.cross(d) * ti.sin(phi)
             angle = ti.atan2(d.dot(v), d.dot(u))
-            theta[s, c] = angle + 2.0 * PI * ti.round((theta[s, c] - angle) / (2.0 * PI))
+            theta[s, c] = angle + 2.0 * ti.math.pi * ti.round((theta[s, c] - angle) / (2.0 * ti.math.pi))
 
 
 @ti.func
@@ -158,7 +158,6 @@ class PinTable:
         self.start = np.zeros(shape + (3,))
         self.end = np.zeros(shape + (3,))
         self.clip = np.zeros(shape + (3, 3))
-        self.root = root
         self.records = {}
         self.next_id = 0
         self.device = None  # (mode, start, end) ndarrays once a pin was added

@@ -300,7 +300,8 @@ class Simulator:
             raise ValueError(f"hold_twist needs twist='quasistatic' (the solve that holds an edge's "
                              f"angle), got twist={self.twist!r}")
         ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev,
-                             hold_twist=hold_twist, slide=slide, directors=self.frames()["m1"])
+                             hold_twist=hold_twist, slide=slide,
+                             directors=self.frames()["m1"] if hold_twist else None)
         return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
 
     def move_pin(self, pin_id, target) -> None:
@@ -343,9 +344,11 @@ class Simulator:
             self._history_h = h
         remaining = total = n * self.substeps
         staged = timers is not None or self.interaction is not None or self.strand_contact is not None
-        # a small scene with strand contact runs many steps per launch on one thread
-        small_contact = (self.strand_contact is not None and timers is None and self.interaction is None
-                         and self.model.groom.n_strands * self.model.groom.max_nodes <= self.small_contact_nodes)
+        # strand contact without timers or the hair grid runs fused: a launch per step, or in a small
+        # scene many steps per launch on one thread
+        fused_contact = self.strand_contact is not None and timers is None and self.interaction is None
+        small_contact = fused_contact and (self.model.groom.n_strands * self.model.groom.max_nodes
+                                           <= self.small_contact_nodes)
         while remaining > 0:
             count = 1 if staged and not small_contact else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
@@ -356,7 +359,7 @@ class Simulator:
             if small_contact:
                 steps_with_strand_contact(self._bundles, self.plan, self.control, h, count, self._contact_grid,
                                           self.strand_contact, moving, pins)
-            elif self.strand_contact is not None and timers is None and self.interaction is None:
+            elif fused_contact:
                 depth = step_with_strand_contact(self._bundles, self.plan, self.control, h, self._contact_grid,
                                                  self.strand_contact, pins)
                 self._contact_depth = max(self._contact_depth, depth)

@@ -189,7 +189,6 @@ class StepBundles:
             self._drive_key = key
         return self._drive
 
-
     @property
     def rods(self):
         """(RodModel, RodState): the arrays the bundles hold."""
@@ -550,6 +549,7 @@ STAGES = (("forces", stage_forces), ("integration", stage_integrate), ("projecti
           ("frames + twist", stage_frames_twist))
 STAGE_NAMES = tuple(name for name, _ in STAGES)
 _STAGE_FUNCS = tuple(func for _, func in STAGES)
+PROJECTION = STAGE_NAMES.index("projection")
 
 
 # ---- the fused driver: many steps in one launch -------------------------------------------------
@@ -584,15 +584,22 @@ def compiled_variants() -> list[dict]:
     return [asdict(next(part for part in key if isinstance(part, StageFlags))) for key in keys]
 
 
+def launch_flags(plan: StepPlan, control, pins, moving_head: bool = False):
+    """(flags, pin arrays or None, (f0, df)) of a launch; pins: None, or (pin_mode, pin_start,
+    pin_end, clip, f0, df, clips) as `advance` takes them."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
+    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
+                        pins=pins is not None, clips=clips)
+    return flags, arrays_, fraction
+
+
 def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, moving_head: bool,
             pins=None) -> None:
     """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
     pins: None, or (pin_mode, pin_start, pin_end, clip, f0, df, clips): after step k pinned
     nodes are min(1, f0 + (k + 1) df) of the way from start to end (see pins.py); clips: a clip
     holds twist or slides."""
-    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
-    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
-                        pins=pins is not None, clips=clips)
+    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
     advance_strands(n_steps, flags, *step_scalars(plan, control, h, fraction), bundles.model,
                     bundles.state, bundles.drive(arrays_), bundles.contacts)
 
@@ -633,11 +640,10 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
     strand-strand contacts after the projection, calling project() to run the projection stage
     again between its passes. With `timers(name)` (a context manager timing each stage; it must
     synchronise) every stage runs in a launch of its own."""
-    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
-    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None, clips=clips)
+    flags, arrays_, fraction = launch_flags(plan, control, pins)
     args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
-    projection = STAGE_NAMES.index("projection")
+    projection = PROJECTION
     if timers is None:
         first = 0
         if interaction is not None:
@@ -662,7 +668,17 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
                 strand_contact(lambda: run_stages(projection, projection + 1, *args))
 
 
-PROJECTION = STAGE_NAMES.index("projection")
+@ti.func
+def read_step_values(params: ti.template()):
+    """(StepScalars, self_contact, hash mask, friction, allowed depth [m], contact passes, steps)
+    from params[STEP_VALUES:], as write_step_values put them."""
+    v = ti.static(STEP_VALUES)
+    sc = StepScalars(h=params[v + 0], t0=params[v + 1], drag=params[v + 2], max_speed=params[v + 3],
+                     projection_tol=params[v + 4], projection_iterations=ti.cast(params[v + 5], ti.i32),
+                     twist_tol=params[v + 6], twist_iterations=ti.cast(params[v + 7], ti.i32),
+                     n_analytic=ti.cast(params[v + 8], ti.i32), pin_f0=params[v + 9], pin_df=params[v + 10])
+    return (sc, ti.cast(params[v + 11], ti.i32), ti.cast(params[v + 12], ti.i32), params[v + 13], params[v + 14],
+            ti.cast(params[v + 15], ti.i32), ti.cast(params[v + 16], ti.i32))
 
 
 @ti.kernel
@@ -679,14 +695,7 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
     loop is a top-level loop of the kernel (parallel), so the pass sees every strand's
     corrections. The scalars come in grid_params[STEP_VALUES:] (write_step_values): Taichi's cap
     of 64 arguments leaves no room for them."""
-    sc = StepScalars(h=cg.grid_params[STEP_VALUES + 0], t0=cg.grid_params[STEP_VALUES + 1], drag=cg.grid_params[STEP_VALUES + 2], max_speed=cg.grid_params[STEP_VALUES + 3],
-                     projection_tol=cg.grid_params[STEP_VALUES + 4], projection_iterations=ti.cast(cg.grid_params[STEP_VALUES + 5], ti.i32),
-                     twist_tol=cg.grid_params[STEP_VALUES + 6], twist_iterations=ti.cast(cg.grid_params[STEP_VALUES + 7], ti.i32),
-                     n_analytic=ti.cast(cg.grid_params[STEP_VALUES + 8], ti.i32), pin_f0=cg.grid_params[STEP_VALUES + 9], pin_df=cg.grid_params[STEP_VALUES + 10])
-    self_contact = ti.cast(cg.grid_params[STEP_VALUES + 11], ti.i32)
-    mask = ti.cast(cg.grid_params[STEP_VALUES + 12], ti.i32)
-    friction = cg.grid_params[STEP_VALUES + 13]
-    allowed = cg.grid_params[STEP_VALUES + 14]
+    sc, self_contact, mask, friction, allowed, _, _ = read_step_values(cg.grid_params)
     for s in range(st.x.shape[0]):
         st.counters[s, BAD] = -1
         for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
@@ -694,8 +703,8 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
                 st.counters[s, BAD] = 0
     contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x, st.x_prev,
                  md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count, cg.bucket_start, cg.cursor,
-                 cg.sorted_seg, mask, friction, cg.grid_params, cg.grid_counters, cg.delta, cg.hits, cg.hits,
-                 1)  # (the record array: unused when resolving)
+                 cg.sorted_seg, mask, friction, cg.grid_params, cg.grid_counters, cg.delta, cg.hits,
+                 cg.hits)  # (the record array: unused when resolving)
     cg.grid_params[DONE] = 1.0
     project = 0
     if cg.grid_counters[PAIRS] > 0:
@@ -723,20 +732,7 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
     Head poses and pins as in advance_strands (fl.moving_head: one pose per step). counters[s,
     BAD] = the step where a strand failed (the launch stops there), -1 if none. Scalars in
     grid_params[STEP_VALUES:] (write_step_values)."""
-    sc = StepScalars(h=cg.grid_params[STEP_VALUES + 0], t0=cg.grid_params[STEP_VALUES + 1],
-                     drag=cg.grid_params[STEP_VALUES + 2], max_speed=cg.grid_params[STEP_VALUES + 3],
-                     projection_tol=cg.grid_params[STEP_VALUES + 4],
-                     projection_iterations=ti.cast(cg.grid_params[STEP_VALUES + 5], ti.i32),
-                     twist_tol=cg.grid_params[STEP_VALUES + 6],
-                     twist_iterations=ti.cast(cg.grid_params[STEP_VALUES + 7], ti.i32),
-                     n_analytic=ti.cast(cg.grid_params[STEP_VALUES + 8], ti.i32),
-                     pin_f0=cg.grid_params[STEP_VALUES + 9], pin_df=cg.grid_params[STEP_VALUES + 10])
-    self_contact = ti.cast(cg.grid_params[STEP_VALUES + 11], ti.i32)
-    mask = ti.cast(cg.grid_params[STEP_VALUES + 12], ti.i32)
-    friction = cg.grid_params[STEP_VALUES + 13]
-    allowed = cg.grid_params[STEP_VALUES + 14]
-    iterations = ti.cast(cg.grid_params[STEP_VALUES + 15], ti.i32)
-    n_steps = ti.cast(cg.grid_params[STEP_VALUES + 16], ti.i32)
+    sc, self_contact, mask, friction, allowed, iterations, n_steps = read_step_values(cg.grid_params)
     for s in range(st.x.shape[0]):
         st.counters[s, BAD] = -1
     ti.loop_config(serialize=True)
@@ -752,7 +748,7 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
             contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x,
                          st.x_prev, md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count,
                          cg.bucket_start, cg.cursor, cg.sorted_seg, mask, friction, cg.grid_params,
-                         cg.grid_counters, cg.delta, cg.hits, cg.hits, 1)
+                         cg.grid_counters, cg.delta, cg.hits, cg.hits)
             if cg.grid_counters[PAIRS] == 0:
                 break
             depth = cg.grid_params[MAX_PENETRATION]
@@ -795,12 +791,10 @@ def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: 
     """n_steps steps of h with strand contact in one launch on one thread
     (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
     pins as in `advance`."""
-    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
-    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
-                        pins=pins is not None, clips=clips)
-    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
     write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
-                      grid.T - 1, settings.friction, allowed, settings.iterations, n_steps)
+                      grid.T - 1, settings.friction, grid.allowed_depth(settings.tolerance), settings.iterations,
+                      n_steps)
     advance_small_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state,
                                       bundles.drive(arrays_), bundles.contacts, grid.args())
 
@@ -812,12 +806,10 @@ def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: f
     projection stage) and the last stage, in launches of their own. grid a
     strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
     depth [m] the last of those further passes found (0 if none ran)."""
-    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
-    flags = stage_flags(plan, user=control.user_force is not None, pins=pins is not None, clips=clips)
-    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    flags, arrays_, fraction = launch_flags(plan, control, pins)
     scalars = step_scalars(plan, control, h, fraction)
-    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction, allowed,
-                      settings.iterations, 1)
+    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction,
+                      grid.allowed_depth(settings.tolerance), settings.iterations, 1)
     drive = bundles.drive(arrays_)
     advance_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state, drive,
                                 bundles.contacts, grid.args())
@@ -843,8 +835,7 @@ def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) 
     contact solve."""
     flags = stage_flags(plan, contacts=True, pins=False)
     clear_bad(bundles.state.counters)
-    k = STAGE_NAMES.index("projection")
-    run_stages(k, k + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
+    run_stages(PROJECTION, PROJECTION + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
                bundles.drive(), bundles.contacts)
 
 

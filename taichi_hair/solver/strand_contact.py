@@ -140,7 +140,7 @@ def cell_hash(c, mask):
 
 @ti.func
 def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), seg_cell: ti.template(),
-           seg_bucket: ti.template(), bucket_count: ti.template(), mask, active):
+           seg_bucket: ti.template(), bucket_count: ti.template(), mask):
     """Bin every segment by its midpoint into a cubic cell of side L + 2 R_max (L the longest
     current segment, R_max the largest radius; params[CELL] [m]) and count segments per hash
     bucket. Two segments within r_a + r_b of each other have midpoints less than
@@ -149,13 +149,13 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
     stretched segments. Padding slots get bucket -1."""
     n_seg = x.shape[1] - 1
     params[MAX_LENGTH] = 0.0
-    for h in range(bucket_count.shape[0] * active):
+    for h in range(bucket_count.shape[0]):
         bucket_count[h] = 0
-    for s, j in ti.ndrange(x.shape[0] * active, n_seg):
+    for s, j in ti.ndrange(x.shape[0], n_seg):
         if j + 1 < node_count[s]:
             ti.atomic_max(params[MAX_LENGTH], (x[s, j + 1] - x[s, j]).norm())
     params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
-    for s, j in ti.ndrange(x.shape[0] * active, n_seg):
+    for s, j in ti.ndrange(x.shape[0], n_seg):
         g = s * n_seg + j
         seg_bucket[g] = -1
         if j + 1 < node_count[s]:
@@ -167,22 +167,22 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
 
 
 @ti.func
-def _prefix(bucket_count: ti.template(), bucket_start: ti.template(), cursor: ti.template(), active):
+def _prefix(bucket_count: ti.template(), bucket_start: ti.template(), cursor: ti.template()):
     """bucket_start[h] = segments in buckets before h (exclusive scan, [T + 1]); cursor = a copy
     for _fill. Serial: T is a few times the segment count and the loop is trivial."""
     bucket_start[0] = 0
     ti.loop_config(serialize=True)
-    for h in range(bucket_count.shape[0] * active):
+    for h in range(bucket_count.shape[0]):
         bucket_start[h + 1] = bucket_start[h] + bucket_count[h]
-    for h in range(bucket_count.shape[0] * active):
+    for h in range(bucket_count.shape[0]):
         cursor[h] = bucket_start[h]
 
 
 @ti.func
-def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.template(), active):
+def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.template()):
     """Counting sort: sorted_seg[bucket_start[h] ...] lists the segments of bucket h (in no
     particular order)."""
-    for g in range(seg_bucket.shape[0] * active):
+    for g in range(seg_bucket.shape[0]):
         h = seg_bucket[g]
         if h >= 0:
             sorted_seg[ti.atomic_add(cursor[h], 1)] = g
@@ -203,7 +203,7 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                x_prev: ti.template(), inv_mass: ti.template(), seg_cell: ti.template(),
                seg_bucket: ti.template(), bucket_start: ti.template(), sorted_seg: ti.template(), mask,
                friction, params: ti.template(), counters: ti.template(), delta: ti.template(),
-               hits: ti.template(), record: ti.template(), active):
+               hits: ti.template(), record: ti.template()):
     """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
     non-excluded segments closer than r_a + r_b with at least one free node is a contact.
     counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
@@ -224,10 +224,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     counters[RECORDED] = 0
     params[MAX_PENETRATION] = 0.0
     if ti.static(mode == RESOLVE):
-        for s, i in ti.ndrange(x.shape[0] * active, x.shape[1]):
+        for s, i in ti.ndrange(x.shape[0], x.shape[1]):
             delta[s, i] = vec3(0.0)
             hits[s, i] = 0
-    for sa, ja in ti.ndrange(x.shape[0] * active, n_seg):
+    for sa, ja in ti.ndrange(x.shape[0], n_seg):
         ga = sa * n_seg + ja
         if seg_bucket[ga] >= 0:
             a0 = x[sa, ja]
@@ -330,10 +330,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
 
 @ti.func
 def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.template(), hits: ti.template(),
-           x: ti.template(), dx: ti.template(), active):
+           x: ti.template(), dx: ti.template()):
     """x += delta / hits, dx += the same, on free nodes with contacts: the Jacobi average of the
     corrections a node received (their sum would overshoot where several pairs push a node)."""
-    for s, i in ti.ndrange(x.shape[0] * active, x.shape[1]):
+    for s, i in ti.ndrange(x.shape[0], x.shape[1]):
         if i < node_count[s] and hits[s, i] > 0 and inv_mass[s, i] > 0.0:
             move = delta[s, i] / hits[s, i]
             x[s, i] += move
@@ -351,7 +351,7 @@ def _contact_pass(mode: ti.template(), with_friction: ti.template(), node_count:
     loop (Taichi runs a kernel's top-level loops one after another)."""
     contact_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, dx,
                  seg_cell, seg_bucket, bucket_count, bucket_start, cursor, sorted_seg, mask, friction,
-                 params, counters, delta, hits, record, 1)
+                 params, counters, delta, hits, record)
 
 
 @ti.func
@@ -360,18 +360,16 @@ def contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: 
                  x_prev: ti.template(), inv_mass: ti.template(), dx: ti.template(), seg_cell: ti.template(),
                  seg_bucket: ti.template(), bucket_count: ti.template(), bucket_start: ti.template(),
                  cursor: ti.template(), sorted_seg: ti.template(), mask, friction, params: ti.template(),
-                 counters: ti.template(), delta: ti.template(), hits: ti.template(), record: ti.template(),
-                 active):
-    """The stages of one pass as top-level loops of the calling kernel; active = 0 runs every
-    loop over nothing (a pass a fused step no longer needs: see step.advance_with_strand_contact)."""
-    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask, active)
-    _prefix(bucket_count, bucket_start, cursor, active)
-    _fill(seg_bucket, cursor, sorted_seg, active)
+                 counters: ti.template(), delta: ti.template(), hits: ti.template(), record: ti.template()):
+    """The stages of one pass as top-level loops of the calling kernel (or, in a serial kernel,
+    loops in turn: step.advance_small_with_strand_contact)."""
+    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask)
+    _prefix(bucket_count, bucket_start, cursor)
+    _fill(seg_bucket, cursor, sorted_seg)
     _pair_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, seg_cell,
-               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record,
-               active)
+               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record)
     if ti.static(mode == RESOLVE):
-        _apply(node_count, inv_mass, delta, hits, x, dx, active)
+        _apply(node_count, inv_mass, delta, hits, x, dx)
     params[PAIR_COUNT] = ti.cast(counters[PAIRS], float)
 
 
@@ -505,6 +503,10 @@ class ContactGrid:
                 hits=self.hits)
         return self._args
 
+    def allowed_depth(self, tolerance: float) -> float:
+        """The overlap [m] a step may leave: tolerance (relative) of the smallest radius sum."""
+        return tolerance * 2.0 * float(self.radius_values.min())
+
     def deepest_since_reset(self, reset: bool = False) -> float:
         """The largest depth [m] the last contact pass of a fused step found, over the steps since
         the last reset (step.advance_with_strand_contact)."""
@@ -571,7 +573,7 @@ def resolve_strand_contacts(grid: ContactGrid, settings, model, state, project, 
     within settings.tolerance of the radius sum before it. model, state: objects with the
     arrays x, dx, x_prev (state) and inv_mass (model). Returns the largest depth [m] the last
     pass found (before correcting it)."""
-    allowed = settings.tolerance * 2.0 * float(grid.radius_values.min())
+    allowed = grid.allowed_depth(settings.tolerance)
     depth = 0.0
     for _ in range(settings.iterations if passes is None else passes):
         if grid.resolve(state.x, state.dx, state.x_prev, model.inv_mass) == 0:
