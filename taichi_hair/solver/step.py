@@ -485,7 +485,7 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     bad = 0
     if ti.static(fl.implicit):
         for correction in range(2):  # a run-time loop: one copy of the solve in the kernel
-            if strand_implicit_pass(s, correction, sc.h, sc.drag, ti.static(fl.root_mode == 0), md, st):
+            if strand_implicit_pass(s, k, correction, sc.h, sc.drag, ti.static(fl.root_mode == 0), fl.touch, md, st, dr):
                 bad = 1
             if correction == 0:
                 place_root_and_pins(s, k, now, fl, sc, md, st, dr)

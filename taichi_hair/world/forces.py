@@ -159,6 +159,28 @@ def grab_force(tools: ti.template(), points: ti.template(), now, p):
     return f
 
 
+@ti.func
+def grab_stiffness(tools: ti.template(), points: ti.template(), now, p):
+    """-d grab_force / d p at p [N/m] (float64 3x3), made positive semi-definite for the
+    implicit step: a spring k (1 - d/R) q toward the grab point (q = point - p, d = |q|) has
+    stiffness k (1 - d/R) across q and k (1 - 2 d/R) along it, which turns negative past half
+    the radius (the pull fades faster than it grows); that part is clamped at 0."""
+    out = ti.types.matrix(3, 3, ti.f64)(0.0)
+    for k in range(tools.shape[0]):
+        if ti.cast(tools[k][0], ti.i32) == GRAB:
+            q = ti.cast(points[now, k] - p, ti.f64)
+            dist = q.norm()
+            radius = ti.cast(tools[k][1], ti.f64)
+            if dist < radius:
+                across = 1.0 - dist / radius
+                along = ti.max(0.0, 1.0 - 2.0 * dist / radius)
+                qq = ti.types.matrix(3, 3, ti.f64)(0.0)
+                if dist > 0.0:
+                    qq = (q / dist).outer_product(q / dist)
+                out += ti.cast(tools[k][2], ti.f64) * (across * (ti.Matrix.identity(ti.f64, 3) - qq) + along * qq)
+    return out
+
+
 @dataclass(frozen=True, kw_only=True)
 class HairInteraction:
     """Grid hair-hair interaction. cell_size [m]; repulsion c^2 [m^2/s^2]: a node in hair denser
