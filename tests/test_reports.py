@@ -61,6 +61,17 @@ def test_frequency_row_matches_beam_theory(accuracy):
     assert row["error"] < 0.02 and row["measured_hz"] > 0
 
 
+@pytest.mark.parametrize("loss", [0.0, 1e-3, 5e-2])
+def test_frequency_and_damping_estimates_on_a_damped_cosine(loss):
+    """The cantilever rows' estimators on z = A r^(t f) cos(2 pi f t), r = 1 - loss, sampled
+    37 times a period as at dt 16 ms (numpy, no simulator)."""
+    f = 1.7
+    t = np.arange(0.0, 5.0 / f, 1.0 / (37 * f))
+    z = 1e-3 * (1.0 - loss) ** (t * f) * np.cos(2 * np.pi * f * t)
+    assert abs(reports.oscillation_frequency(t, z) / f - 1) < 1e-4
+    assert abs(reports.amplitude_loss_per_period(t, z) - loss) < 2e-4
+
+
 def test_curly_case_has_both_twist_modes_with_finite_errors(accuracy):
     helix = [r for r in accuracy["rows"] if r["case"] == "helix"]
     assert {r["twist"] for r in helix} == {"quasistatic", "kmoch"}

@@ -121,10 +121,10 @@ def first_mode_slope(s, length: float):
 
 
 # ---- the strands ------------------------------------------------------------------------------------
-def clamped_beam(n_segments: int, slope=None):
-    """Horizontal beam of length BEAM_LENGTH along +x clamped at its root node at the origin;
+def clamped_beam(n_segments: int, slope=None, length: float = BEAM_LENGTH):
+    """Horizontal beam of `length` [m] along +x clamped at its root node at the origin;
     slope(s) [rad] optionally bends it (exact edge lengths)."""
-    ds = BEAM_LENGTH / n_segments
+    ds = length / n_segments
     theta = np.zeros(n_segments) if slope is None else slope(ds * (np.arange(n_segments) + 0.5))
     steps = ds * np.stack([np.cos(theta), np.zeros_like(theta), np.sin(theta)], axis=1)
     return Groom.from_polylines(np.vstack([[0.0, 0, 0], np.cumsum(steps, axis=0)]))
@@ -243,21 +243,60 @@ def cantilever_row(n: int, dt: float, repeats: int = 1) -> dict:
                 error=float(np.linalg.norm(tip - ref) / BEAM_LENGTH))
 
 
-def _measure_frequency(sim, expected):
-    """Tip z sampled every ~20 ms for FREQUENCY_PERIODS periods; the frequency from a line fit of
-    its zero-crossing times (half a period apart) [Hz]."""
-    chunk = max(1, round(0.02 / sim.dt))
-    times, tip = [0.0], [sim.positions()[0, -1, 2]]
-    while sim.time < FREQUENCY_PERIODS / expected:
+def sample_tip_z(sim, seconds: float, every: float):
+    """The last node's z of strand 0 [m] at t = 0 and then every ~`every` seconds (whole steps)
+    until `seconds`: (times [s], z [m]) arrays."""
+    chunk = max(1, round(every / sim.dt))
+    times, tip = [sim.time], [sim.positions()[0, -1, 2]]
+    while sim.time < seconds - 1e-12:
         sim.step(chunk)
         times.append(sim.time)
         tip.append(sim.positions()[0, -1, 2])
-    t, z = np.array(times), np.array(tip)
+    return np.array(times), np.array(tip)
+
+
+def zero_crossings(t, z):
+    """Times [s] where the sampled z changes sign (linear interpolation)."""
     k = np.flatnonzero(np.sign(z[:-1]) != np.sign(z[1:]))
-    crossings = t[k] + (t[k + 1] - t[k]) * z[k] / (z[k] - z[k + 1])
+    return t[k] + (t[k + 1] - t[k]) * z[k] / (z[k] - z[k + 1])
+
+
+def oscillation_frequency(t, z) -> float:
+    """[Hz] from a line fit of the zero-crossing times (half a period apart); NaN with < 2."""
+    crossings = zero_crossings(t, z)
     if len(crossings) < 2:
         return float("nan")
     return 0.5 / np.polyfit(np.arange(len(crossings)), crossings, 1)[0]
+
+
+def amplitude_loss_per_period(t, z) -> float:
+    """1 - A_{k+2} / A_k: the fraction of the oscillation's amplitude lost per period, from a
+    line fit of ln|peak| over the half periods between zero crossings (each peak refined by a
+    parabola through the largest sample and its neighbours); NaN with < 3 half periods."""
+    crossings = zero_crossings(t, z)
+    peaks = []
+    for a, b in zip(crossings[:-1], crossings[1:]):
+        inside = np.flatnonzero((t > a) & (t < b))
+        if len(inside) == 0:
+            continue
+        k = inside[np.argmax(np.abs(z[inside]))]
+        peak = abs(z[k])
+        if 0 < k < len(z) - 1:
+            y0, y1, y2 = np.abs(z[k - 1:k + 2])
+            curvature = y0 - 2 * y1 + y2
+            if curvature < 0:
+                peak = y1 - 0.125 * (y2 - y0) ** 2 / curvature
+        peaks.append(peak)
+    if len(peaks) < 3:
+        return float("nan")
+    slope = np.polyfit(np.arange(len(peaks)), np.log(peaks), 1)[0]
+    return float(1.0 - np.exp(2.0 * slope))
+
+
+def _measure_frequency(sim, expected):
+    """Tip z sampled every ~20 ms for FREQUENCY_PERIODS periods; the frequency from a line fit of
+    its zero-crossing times (half a period apart) [Hz]."""
+    return oscillation_frequency(*sample_tip_z(sim, FREQUENCY_PERIODS / expected, 0.02))
 
 
 def frequency_row(n: int, dt: float, repeats: int = 1) -> dict:
