@@ -114,8 +114,10 @@ def tips(sim) -> np.ndarray:
     return x[np.arange(sim.n_strands), sim.groom.node_counts - 1]
 
 
-def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, log=print) -> dict:
-    """Tip deviation from the tiny-step explicit reference for both integrators at STEPS_MS."""
+def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, log=print,
+                  steps_ms=STEPS_MS) -> dict:
+    """Tip deviation from the tiny-step explicit reference for both integrators at each of
+    steps_ms [ms]."""
     lengths = scene.groom.lengths()
     reference = _quiet_simulator(scene, reference_dt, "explicit")
     start = time.perf_counter()
@@ -124,8 +126,8 @@ def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, lo
               "reference_wall_s": time.perf_counter() - start, "rows": []}
     target = tips(reference)
     for integrator in ("explicit", "implicit"):
-        run_for(_quiet_simulator(scene, STEPS_MS[-1] * 1e-3, integrator), 3 * frame_s, frame_s)  # warm-up
-        for ms in STEPS_MS:
+        run_for(_quiet_simulator(scene, max(steps_ms) * 1e-3, integrator), 3 * frame_s, frame_s)  # warm-up
+        for ms in steps_ms:
             sim = _quiet_simulator(scene, ms * 1e-3, integrator)
             row = {"integrator": integrator, "dt": ms * 1e-3, "substeps": sim.substeps}
             try:
@@ -136,7 +138,7 @@ def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, lo
             except SimulationDiverged as err:
                 row.update(outcome=f"diverged: {err}")
             result["rows"].append(row)
-            log(f"accuracy {integrator} dt {ms} ms: {row.get('tip_rms', row.get('outcome'))}")
+            log(f"accuracy {integrator} dt {ms:g} ms: {row.get('tip_rms', row.get('outcome'))}")
     return result
 
 
@@ -190,8 +192,10 @@ def format_cantilever(rows: list) -> str:
 
 def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: int = 10,
                     seconds: float = 0.5, reference_dt: float = 1e-4, out_dir="out/reports", log=print,
-                    scene_rows: bool = True, cantilever: bool = True) -> dict:
-    """scene_rows: the scene's speed and accuracy rows; cantilever: the cantilever rows."""
+                    scene_rows: bool = True, cantilever: bool = True, steps_ms=STEPS_MS) -> dict:
+    """scene_rows: the scene's speed and accuracy rows (at steps_ms [ms]); cantilever: the
+    cantilever rows. Writes implicit.json, and implicit.png (tip error against wall time, both
+    integrators, log-log) when there are accuracy rows."""
     from .runner import load_scene_module
     from .. import runtime
     module = load_scene_module(script)
@@ -205,11 +209,31 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
         frame_s = 1.0 / (shot.fps if shot is not None else 24)
         dt = shot.dt if shot is not None else 1e-3
         result["speed"] = speed_rows(scene, dt, frames, frame_s, log) if frames else []
-        result["accuracy"] = accuracy_rows(subset(scene, every), seconds, reference_dt, frame_s, log)
+        result["accuracy"] = accuracy_rows(subset(scene, every), seconds, reference_dt, frame_s, log, steps_ms)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "implicit.json").write_text(json.dumps(result, indent=1))
+    if result["accuracy"] is not None:
+        from render import write_png  # the renderer loads only where a figure is drawn
+        write_png(out / "implicit.png", implicit_figure(result).image)
     return result
+
+
+def implicit_figure(result: dict):
+    """Tip RMS / L against stepping wall time [s], log-log: a line per integrator through its
+    steps (marker per step; diverged runs left out)."""
+    from render.plot import PALETTE, Series, loglog
+    series, legend = [], []
+    for k, integrator in enumerate(("explicit", "implicit")):
+        rows = [r for r in result["accuracy"]["rows"] if r["integrator"] == integrator and "tip_rms" in r]
+        steps = ", ".join(f"{1e3 * r['dt']:.3g}" for r in rows)
+        series.append(Series(x=[r["wall_s"] for r in rows], y=[r["tip_rms"] for r in rows], colour=PALETTE[k],
+                             marker="o" if k == 0 else "s"))
+        legend.append((f"{integrator} dt {steps} ms", PALETTE[k], "o" if k == 0 else "s", True, False))
+    acc = result["accuracy"]
+    return loglog(series, title=f"{Path(result['scene']).stem}: tip error vs wall time "
+                                f"(ref explicit {1e3 * acc['reference_dt']:g} ms)",
+                  x_label="wall time [s]", y_label="tip RMS / L", legend=legend)
 
 
 def format_implicit(result: dict) -> str:
@@ -235,9 +259,9 @@ def format_implicit(result: dict) -> str:
                  f"{'head depth mm':>13} {'max strain':>10}")
     for r in acc["rows"]:
         if "outcome" in r:
-            lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.0f} {r['substeps']:8d}  {r['outcome'][:90]}")
+            lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.3g} {r['substeps']:8d}  {r['outcome'][:90]}")
             continue
-        lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.0f} {r['substeps']:8d} {r['wall_s']:7.2f} "
+        lines.append(f"  {r['integrator']:10} {1e3 * r['dt']:6.3g} {r['substeps']:8d} {r['wall_s']:7.2f} "
                      f"{r['tip_rms']:9.2e} {r['tip_max']:9.2e} {r['head_depth_mm']:13.3f} {r['max_strain']:10.1e}")
     return "\n".join(lines)
 
@@ -250,6 +274,8 @@ def add_parser(sub) -> None:
     p.add_argument("--every", type=int, default=10, help="accuracy on every k-th guide")
     p.add_argument("--seconds", type=float, default=0.5, help="simulated seconds of the accuracy runs")
     p.add_argument("--reference-dt", type=float, default=1e-4, help="the explicit reference's dt [s]")
+    p.add_argument("--steps-ms", default=",".join(f"{ms:g}" for ms in STEPS_MS),
+                   help="comma-separated steps [ms] of the accuracy rows (default %(default)s)")
     p.add_argument("--out", default="out/reports")
     p.add_argument("--json", action="store_true")
     which = p.add_mutually_exclusive_group()
@@ -259,11 +285,22 @@ def add_parser(sub) -> None:
     p.set_defaults(func=_main)
 
 
+def _steps(text: str) -> tuple:
+    try:
+        steps = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        steps = ()
+    if not steps or not all(0 < v <= 100 for v in steps):
+        raise ValueError(f"--steps-ms must be comma-separated steps in (0, 100] ms, got {text!r}")
+    return steps
+
+
 def _main(args) -> int:
     import sys
     result = implicit_report(args.scene, frames=args.frames, every=args.every, seconds=args.seconds,
                              reference_dt=args.reference_dt, out_dir=args.out,
                              scene_rows=not args.cantilever_only, cantilever=not args.no_cantilever,
+                             steps_ms=_steps(args.steps_ms),
                              log=lambda text: print(text, file=sys.stderr, flush=True))
     print(json.dumps(result, indent=1) if args.json else format_implicit(result))
     return 0
