@@ -72,6 +72,20 @@ def test_frequency_and_damping_estimates_on_a_damped_cosine(loss):
     assert abs(reports.amplitude_loss_per_period(t, z) - loss) < 2e-4
 
 
+def test_implicit_figure_draws_both_integrators():
+    """The implicit report's error-vs-wall-time figure: one colour per integrator, diverged rows
+    left out (no simulator: rows as the report writes them)."""
+    from render.plot import PALETTE
+    from taichi_hair.app.implicit_report import implicit_figure
+    rows = [{"integrator": i, "dt": dt, "wall_s": w, "tip_rms": e}
+            for i, scale in (("explicit", 1.0), ("implicit", 0.2)) for dt, w, e in
+            ((1e-3, 1.0 * scale, 1e-4), (4e-3, 0.5 * scale, 1e-3))]
+    rows.append({"integrator": "implicit", "dt": 16e-3, "outcome": "diverged: ..."})
+    image = implicit_figure({"scene": "scenes/x.py", "accuracy": {"reference_dt": 1e-4, "rows": rows}}).image
+    for colour in PALETTE[:2]:
+        assert (np.abs(image.astype(int) - colour).sum(axis=2) == 0).sum() > 50
+
+
 def test_curly_case_has_both_twist_modes_with_finite_errors(accuracy):
     helix = [r for r in accuracy["rows"] if r["case"] == "helix"]
     assert {r["twist"] for r in helix} == {"quasistatic", "kmoch"}
