@@ -285,6 +285,21 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch:
     return failed
 
 
+CORRECTION_TOL = 1e-4  # relative length error a length correction must leave, else it repeats
+MAX_CORRECTIONS = 4
+
+
+@ti.func
+def length_residual(s, md: ti.template(), st: ti.template()):
+    """max_j | |e_j| - l_j | / l_j over strand s's edges with a free node (relative)."""
+    worst = 0.0
+    for j in range(md.node_count[s] - 1):
+        if md.inv_mass[s, j] + md.inv_mass[s, j + 1] > 0.0:
+            rest = md.rest_length[s, j]
+            worst = ti.max(worst, ti.abs((st.x[s, j + 1] - st.x[s, j]).norm() - rest) / rest)
+    return worst
+
+
 @ti.func
 def strand_implicit_velocities(s, sc, md: ti.template(), st: ti.template()):
     """v_{n+1} = (3 (x_{n+1} - x_n) - (x_n - x_{n-1})) / 2h, BDF2's velocity of the projected

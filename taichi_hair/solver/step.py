@@ -24,7 +24,7 @@ from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import (assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
+from .implicit import (CORRECTION_TOL, MAX_CORRECTIONS, length_residual, assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
                        strand_implicit_velocities)
 from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, STEP_VALUES, ContactGridArgs,
                              contact_pass, resolve_strand_contacts)
@@ -484,11 +484,20 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     now, _ = head_poses(k, fl)
     bad = 0
     if ti.static(fl.implicit):
-        for correction in range(2):  # a run-time loop: one copy of the solve in the kernel
-            if strand_implicit_pass(s, k, correction, sc.h, sc.drag, ti.static(fl.root_mode == 0), fl.touch, md, st, dr):
+        # the predictor, then length corrections until the edges are within CORRECTION_TOL (at
+        # most MAX_CORRECTIONS): one at small steps; large steps and tight curls leave the first
+        # correction 1e-3 off, and the fast projection taking that up in the metric M kinks the
+        # strand (docs/model.md, "The implicit step"). A run-time loop: one copy of the solve.
+        passes = 0
+        again = 1
+        while again:
+            if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag, ti.static(fl.root_mode == 0),
+                                    fl.touch, md, st, dr):
                 bad = 1
-            if correction == 0:
+            if passes == 0:
                 place_root_and_pins(s, k, now, fl, sc, md, st, dr)
+            passes += 1
+            again = passes == 1 or (passes <= MAX_CORRECTIONS and length_residual(s, md, st) > CORRECTION_TOL)
     else:
         strand_symplectic_euler(s, sc.h, fl, md, st, dr)
         place_root_and_pins(s, k, now, fl, sc, md, st, dr)
