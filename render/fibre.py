@@ -540,14 +540,18 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          ntab: ti.types.ndarray(dtype=f32, ndim=4),
                          atab: ti.types.ndarray(dtype=f32, ndim=3),
                          dtab: ti.types.ndarray(dtype=f32, ndim=2),
+                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
     """rgba[i] (+)= (linear radiance of vertex i under one directional light of `irradiance`
     [W/m^2], plus, when `first`, the uniform `ambient` radiance; opacity). terms[i]: the
     vertex's (hair opacity towards the light, mesh visibility, hair opacity behind it) from
     `shadows.shadow_terms`. dual: Zinke's dual scattering (`dual_scattering`); otherwise single
     scattering shadowed by exp(-density x opacity) x visibility. Tangent from the strand
-    neighbours (root to tip). Shapes (V,). One thread per vertex."""
+    neighbours (root to tip). masked: only vertices with mark[i] != 0 (the others' rgba is left
+    as it was). Shapes (V,). One thread per vertex."""
     for i in range(n):
+        if masked and mark[i] == 0:
+            continue
         t = unit(x[nbr[i][1]] - x[nbr[i][0]])
         v = unit(eye - x[i])
         s, albedo = fibre_terms(t, to_light, v, sigma[i], beta_m[i], shifts, ntab, atab)

@@ -22,7 +22,7 @@ from .runtime import buffer, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
-from .tiles import composite_hair
+from .tiles import bin_hair, composite_binned
 
 vec2f = ti.types.vector(2, ti.f32)
 vec2i = ti.types.vector(2, ti.i32)
@@ -100,6 +100,7 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
                 shadow=buffer("hair_shadow", f32, (nv,)),
                 terms=buffer("hair_shadow_terms", vec3f, (nv,), 3),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
+                mark=buffer("hair_mark", ti.i32, (nv,)),
                 n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
 
 
@@ -154,12 +155,13 @@ def _lights(lights, lighting) -> tuple[list, np.ndarray]:
 
 
 def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre,
-                smap):
-    """Shade the hair vertices for one directional light (adding to earlier lights)."""
+                smap, masked: bool):
+    """Shade the hair vertices for one directional light (adding to earlier lights); masked:
+    only the vertices marked in hd["mark"]."""
     to_light = light.to_light
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
     shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                   smap.params)
+                   smap.params, int(masked), hd["mark"])
     if settings.hair_model == "fibre":
         ntab, atab, dtab = upload_tables(fibre)
         points_shadow_terms(hd["n_vertices"], hd["x"], *shadow_args, hd["terms"])
@@ -167,17 +169,20 @@ def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSett
                              hd["terms"], hd["opacity"], eye, to_light, irradiance, ambient,
                              int(first), int(settings.multiple_scattering),
                              np.float32(settings.shadows.density), fibre.shifts(), ntab, atab,
-                             dtab, hd["rgba"])
+                             dtab, int(masked), hd["mark"], hd["rgba"])
     else:
         points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
         shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
                             hd["opacity"], eye, to_light, irradiance / np.float32(np.pi), ambient,
-                            int(first), settings.hair_shading.packed(), hd["rgba"])
+                            int(first), settings.hair_shading.packed(), int(masked), hd["mark"],
+                            hd["rgba"])
 
 
-def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base):
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
+                  masked: bool = False):
     """Per directional light: its shadow maps, the meshes' and the hair's shading, adding up
-    (the first pass also writes the ambient term and the background)."""
+    (the first pass also writes the ambient term and the background). masked: shade only the
+    hair vertices marked in hd["mark"]."""
     passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
     for k, light in enumerate(passes):
         shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
@@ -190,7 +195,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
                    bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
                    smap.params, int(k == 0), base)
         if hd["n_vertices"]:
-            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap)
+            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap, masked)
 
 
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
@@ -227,17 +232,21 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
-    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base)
-
-    # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
+    # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
+    # of the meshes; only those are shaded
+    bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
+                  masked=bins is not None)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
     if tiled:
-        composite_hair(hd, near, mesh_key, base, rgb_s, alpha_s)
+        if bins is None:
+            bins = bin_hair(hd, near, mesh_key)
+        composite_binned(bins, hd, mesh_key, base, rgb_s, alpha_s)
     else:
         raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
                     mesh_key, kbuf, tail)
@@ -268,5 +277,6 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     hd, md = _upload_hair(hair), _upload_meshes(list(meshes))
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
-                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, hd["shadow"])
+                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, 0, hd["mark"],
+                         hd["shadow"])
     return hd["shadow"].to_numpy()[: hd["n_vertices"]]

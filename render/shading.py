@@ -245,10 +245,14 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
                         shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
                         eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, first: ti.i32,
-                        kk: vec8f, rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+                        kk: vec8f, masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                        rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
     """rgba[i] (+)= (linear radiance of vertex i under one key light, plus the ambient when
-    `first`, opacity). Tangent from the strand neighbours. Shapes (V,). One thread per vertex."""
+    `first`, opacity). Tangent from the strand neighbours. masked: only vertices with
+    mark[i] != 0. Shapes (V,). One thread per vertex."""
     for i in range(n):
+        if masked and mark[i] == 0:
+            continue
         t = unit(x[nbr[i][1]] - x[nbr[i][0]])
         v = unit(eye - x[i])
         c = shade_hair(t, to_light, v, albedo[i], light, ambient, shadow[i], kk)

@@ -231,9 +231,13 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         opacity: ti.types.ndarray(dtype=f32, ndim=3),
                         bounds: ti.types.ndarray(dtype=f32, ndim=1),
                         mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
+                        masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                         out: ti.types.ndarray(dtype=vec3f, ndim=1)):
-    """out[i] = shadow_terms at x[i] [m], shapes (n,). One thread per point."""
+    """out[i] = shadow_terms at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
+    thread per point."""
     for k in range(n):
+        if masked and mark[k] == 0:
+            continue
         out[k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
@@ -243,25 +247,37 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          opacity: ti.types.ndarray(dtype=f32, ndim=3),
                          bounds: ti.types.ndarray(dtype=f32, ndim=1),
                          mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
+                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out[i] = transmittance at x[i] [m], shapes (n,). One thread per point."""
+    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
+    thread per point."""
     for k in range(n):
+        if masked and mark[k] == 0:
+            continue
         out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+
+
+REDUCE_CHUNKS = 64
 
 
 @ti.kernel
 def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                  box: ti.types.ndarray(dtype=f32, ndim=1)):
-    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Scalar atomics on fixed
-    addresses, which Taichi turns into thread-local reductions."""
+    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Each of REDUCE_CHUNKS
+    threads reduces a contiguous chunk in registers, then one atomic per chunk and bound
+    (atomics on fixed addresses per point cost 70 ns a point on the CPU)."""
     for k in ti.static(range(3)):
         box[k] = f32(3.0e38)
         box[k + 3] = f32(-3.0e38)
-    for i in range(n):
-        p = x[i]
+    chunk = (n + REDUCE_CHUNKS - 1) // REDUCE_CHUNKS
+    for c in range(REDUCE_CHUNKS):
+        lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
+        for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+            lo = ti.min(lo, x[i])
+            hi = ti.max(hi, x[i])
         for k in ti.static(range(3)):
-            ti.atomic_min(box[k], p[k])
-            ti.atomic_max(box[k + 3], p[k])
+            ti.atomic_min(box[k], lo[k])
+            ti.atomic_max(box[k + 3], hi[k])
 
 
 def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
@@ -278,7 +294,7 @@ def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
 def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
                      mesh: dict | None) -> ShadowMap:
     """Render the light's maps. hair/mesh: dicts of uploaded device arrays from `render.frame`
-    (both: x, width, width_px (scratch), n_vertices; hair also: seg, n_segments,
+    (both: x, width, n_vertices; hair also: seg, n_segments,
     opacity; mesh also: faces, n_faces) or None. Disabled settings or an empty scene give a map that lets all
     light through."""
     parts = [d for d in (hair, mesh) if d is not None]
@@ -302,13 +318,13 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     bounds = upload("shadow_bounds", settings.bounds(2.0 * radius), f32)
     if mesh is not None and settings.mesh_shadows:
         ls = buffer("shadow_mesh_screen", vec4f, (max(mesh["n_vertices"], 1),), 4)
-        project_vertices(mesh["n_vertices"], mesh["x"], mesh["width"], view, proj, ls,
-                         mesh["width_px"])
+        scratch = buffer("shadow_mesh_width_px", f32, (max(mesh["n_vertices"], 1),))
+        project_vertices(mesh["n_vertices"], mesh["x"], mesh["width"], view, proj, ls, scratch)
         raster_triangles(mesh["n_faces"], ls, mesh["faces"], 0.0, mesh_key)
     if hair is not None:
         ls = buffer("shadow_hair_screen", vec4f, (hair["n_vertices"],), 4)
-        project_vertices(hair["n_vertices"], hair["x"], hair["width"], view, proj, ls,
-                         hair["width_px"])
+        scratch = buffer("shadow_hair_width_px", f32, (hair["n_vertices"],))
+        project_vertices(hair["n_vertices"], hair["x"], hair["width"], view, proj, ls, scratch)
         splat_hair_depth(hair["n_segments"], hair["seg"], ls, z0)
         splat_hair_opacity(hair["n_segments"], hair["seg"], ls, hair["width"], hair["opacity"],
                            light.texel_size, z0, bounds, fixed)
