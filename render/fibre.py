@@ -38,6 +38,8 @@ PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
 # table grids: |theta_o| in [0, THETA_MAX], phi in [0, pi], sigma on u = log(1 + sigma / S0)
 N_THETA, N_PHI, N_SIGMA = 32, 96, 24
+# threads of the vertex shading kernel, each over a contiguous run of vertices
+SHADE_CHUNKS = 4096
 THETA_MAX = math.radians(89.5)
 SIGMA0, SIGMA_MAX = 0.25, 64.0
 U_MAX = math.log1p(SIGMA_MAX / SIGMA0)
@@ -321,10 +323,42 @@ def log_i0(x: f32) -> f32:
 @ti.func
 def m_lobe(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, v: f32) -> f32:
     """d'Eon's longitudinal lobe in float32, stable for small variances v."""
-    a = cos_i * cos_o / v
-    b = sin_i * sin_o / v
+    return m_lobe_c(sin_i, cos_i, sin_o, cos_o, f32(1.0) / v, variance_constant(v))
+
+
+@ti.func
+def variance_constant(v: f32) -> f32:
+    """1 / v + log(v (1 - exp(-2 / v))): the part of log M that depends on v alone."""
     inv_v = f32(1.0) / v
-    return ti.exp(log_i0(a) - b - inv_v - ti.log(v) - ti.log(f32(1.0) - ti.exp(f32(-2.0) * inv_v)))
+    return inv_v + ti.log(v * (f32(1.0) - ti.exp(f32(-2.0) * inv_v)))
+
+
+@ti.func
+def m_lobe_c(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, inv_v: f32, c_v: f32) -> f32:
+    """`m_lobe` with 1 / v and c_v = `variance_constant(v)` given (they depend on the fibre
+    alone): M = I0(a) exp(-b - c_v), a = cos_i cos_o / v, b = sin_i sin_o / v; below a = 12 the
+    I0 series multiplies the exponential (no logarithm), above it the asymptote's logarithm
+    joins the exponent."""
+    a = cos_i * cos_o * inv_v
+    b = sin_i * sin_o * inv_v
+    r = f32(0.0)
+    if a > 12.0:
+        r = ti.exp(a + f32(0.5) * (f32(-_LOG_2PI) - ti.log(a) + f32(1.0) / (f32(8.0) * a))
+                   - b - c_v)
+    else:
+        val, x2i = f32(0.0), f32(1.0)
+        for i in ti.static(range(16)):
+            val += f32(_I0_COEFFS[i]) * x2i
+            x2i *= a * a
+        r = val * ti.exp(-b - c_v)
+    return r
+
+
+@ti.func
+def lobe_variance(beta_m: f32) -> f32:
+    """v_0 of the R lobe for longitudinal roughness beta_m (floored at 1e-4)."""
+    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
+    return ti.max(v0 * v0, f32(1e-4))
 
 
 @ti.func
@@ -366,6 +400,23 @@ def a_lookup(atab: ti.template(), k: ti.i32, ut: f32, us: f32) -> f32:
 def fibre_terms(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, shifts: ti.template(),
                 ntab: ti.template(), atab: ti.template()):
     """(S(l, v) [1/sr], albedo under uniform light) of a fibre with unit tangent t, both vec3f."""
+    v0 = lobe_variance(beta_m)
+    us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
+    return fibre_terms_c(t, l, v, us, v0, fibre_constants(v0), shifts, ntab, atab)
+
+
+@ti.func
+def fibre_constants(v0: f32) -> vec3f:
+    """`variance_constant` of the lobes' variances v0 (R), v0 / 4 (TT), 4 v0 (TRT, TRRT+)."""
+    return vec3f(variance_constant(v0), variance_constant(f32(0.25) * v0),
+                 variance_constant(f32(4.0) * v0))
+
+
+@ti.func
+def fibre_terms_c(t: vec3f, l: vec3f, v: vec3f, us: vec3f, v0: f32, cv: vec3f,
+                  shifts: ti.template(), ntab: ti.template(), atab: ti.template()):
+    """`fibre_terms` with the fibre's constants given: us the absorption's table coordinates
+    per channel (`sigma_coord`), v0 its `lobe_variance`, cv its `fibre_constants`."""
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
     cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
@@ -377,8 +428,7 @@ def fibre_terms(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, shifts:
         cphi = ti.math.clamp(lp.dot(vp) / den, f32(-1.0), f32(1.0))
     ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
     up = ti.acos(cphi) * f32((N_PHI - 1) / math.pi)
-    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
-    v0 = ti.max(v0 * v0, f32(1e-4))
+    inv_v0 = f32(1.0) / v0
     # the tilted view angles of R, TT and TRT
     s_r = sin_o * shifts[1] - cos_o * shifts[0]
     c_r = ti.abs(cos_o * shifts[1] + sin_o * shifts[0])
@@ -386,18 +436,17 @@ def fibre_terms(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, shifts:
     c_tt = ti.abs(cos_o * shifts[3] - sin_o * shifts[2])
     s_trt = sin_o * shifts[5] + cos_o * shifts[4]
     c_trt = ti.abs(cos_o * shifts[5] - sin_o * shifts[4])
-    m_r = m_lobe(sin_i, cos_i, s_r, c_r, v0)
-    m_tt = m_lobe(sin_i, cos_i, s_tt, c_tt, f32(0.25) * v0)
-    m_trt = m_lobe(sin_i, cos_i, s_trt, c_trt, f32(4.0) * v0)
-    m_rest = m_lobe(sin_i, cos_i, sin_o, cos_o, f32(4.0) * v0) * f32(0.5 / math.pi)
+    m_r = m_lobe_c(sin_i, cos_i, s_r, c_r, inv_v0, cv[0])
+    m_tt = m_lobe_c(sin_i, cos_i, s_tt, c_tt, f32(4.0) * inv_v0, cv[1])
+    m_trt = m_lobe_c(sin_i, cos_i, s_trt, c_trt, f32(0.25) * inv_v0, cv[2])
+    m_rest = m_lobe_c(sin_i, cos_i, sin_o, cos_o, f32(0.25) * inv_v0, cv[2]) * f32(0.5 / math.pi)
     r = m_r * n_lookup(ntab, 0, ut, up, f32(0.0))
     s = vec3f(r, r, r)
     albedo = vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
-        us = sigma_coord(sigma[c])
-        s[c] += (m_tt * n_lookup(ntab, 1, ut, up, us) + m_trt * n_lookup(ntab, 2, ut, up, us)
-                 + m_rest * a_lookup(atab, 1, ut, us))
-        albedo[c] = a_lookup(atab, 0, ut, us)
+        s[c] += (m_tt * n_lookup(ntab, 1, ut, up, us[c]) + m_trt * n_lookup(ntab, 2, ut, up, us[c])
+                 + m_rest * a_lookup(atab, 1, ut, us[c]))
+        albedo[c] = a_lookup(atab, 0, ut, us[c])
     return s, albedo
 
 
@@ -486,12 +535,47 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     over the backward half in azimuth; S_G the light arriving spread out, a broadened lobe
     carrying the fibre's albedo isotropically in azimuth. Each term integrates over incident
     directions to its energy (A_b, the albedo)."""
+    v0 = lobe_variance(beta_m)
+    us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
+    bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, alpha, dtab)
+    return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af)
+
+
+@ti.func
+def dual_constants(us: vec3f, v0: f32, alpha: f32, dtab: ti.template()):
+    """The fibre's dual-scattering constants per channel, from its absorption's table
+    coordinates us, lobe variance v0 and cuticle tilt alpha: forward variance beta_f^2,
+    backscattered energy A_b, its shift Delta_b and variance sigma_b^2, and log a_f."""
+    bf2_, a_back_, shift_, var_b_, log_af_ = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                              vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                              vec3f(0.0, 0.0, 0.0))
+    for c in ti.static(range(3)):
+        af, ab = d_lookup(dtab, 0, us[c]), d_lookup(dtab, 1, us[c])
+        bf2, bb2 = d_lookup(dtab, 2, us[c]) * v0, d_lookup(dtab, 3, us[c]) * v0
+        alpha_f, alpha_b = d_lookup(dtab, 4, us[c]) * alpha, d_lookup(dtab, 5, us[c]) * alpha
+        af2, ab2 = af * af, ab * ab
+        den = ti.max(f32(1.0) - af2, f32(1e-3))
+        a_back_[c] = ab * af2 / den + ab * ab2 * af2 / (den * den * den)
+        shift_[c] = (alpha_b * (f32(1.0) - f32(2.0) * ab2 / (den * den))
+                     + alpha_f * (f32(2.0) * den * den + f32(4.0) * af2 * ab2) / (den * den * den))
+        sd_b = ((f32(1.0) + f32(D_BACK) * af2)
+                * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
+                / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
+        bf2_[c] = bf2
+        var_b_[c] = ti.max(sd_b * sd_b, f32(1e-4))
+        log_af_[c] = ti.log(ti.max(af, f32(1e-6)))
+    return bf2_, a_back_, shift_, var_b_, log_af_
+
+
+@ti.func
+def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: vec3f,
+                      terms: vec3f, bf2: vec3f, a_back: vec3f, shift: vec3f, var_b: vec3f,
+                      log_af: vec3f) -> vec3f:
+    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants` given."""
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
     theta_i, theta_o = ti.asin(sin_i), ti.asin(sin_o)
-    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
-    v0 = ti.max(v0 * v0, f32(1e-4))
     direct = ti.exp(-n) * vis
     back_w = f32(1.0) - ti.exp(-terms[2])
     lp, vp = l - sin_i * t, v - sin_o * t
@@ -502,28 +586,15 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     n_back = f32(0.5) * ti.max(cphi, f32(0.0))   # azimuth of backscatter: cos(phi) / 2, back half
     out = vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
-        us = sigma_coord(sigma[c])
-        af, ab = d_lookup(dtab, 0, us), d_lookup(dtab, 1, us)
-        bf2, bb2 = d_lookup(dtab, 2, us) * v0, d_lookup(dtab, 3, us) * v0
-        alpha_f, alpha_b = d_lookup(dtab, 4, us) * alpha, d_lookup(dtab, 5, us) * alpha
-        af2, ab2 = af * af, ab * ab
-        den = ti.max(f32(1.0) - af2, f32(1e-3))
-        a_back = ab * af2 / den + ab * ab2 * af2 / (den * den * den)
-        shift = (alpha_b * (f32(1.0) - f32(2.0) * ab2 / (den * den))
-                 + alpha_f * (f32(2.0) * den * den + f32(4.0) * af2 * ab2) / (den * den * den))
-        sd_b = ((f32(1.0) + f32(D_BACK) * af2)
-                * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
-                / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
-        var_f = n * bf2
-        var_b = ti.max(sd_b * sd_b, f32(1e-4))
+        var_f = n * bf2[c]
         out[c] = direct * s[c]
         if direct * back_w > 1e-4:
-            out[c] += (direct * f32(D_BACK) * back_w * a_back * n_back
-                       * gauss_lobe(theta_i, theta_o + shift, var_b))
-        t_f = f32(D_FORWARD) * ti.exp(n * ti.log(ti.max(af, f32(1e-6)))) * vis
+            out[c] += (direct * f32(D_BACK) * back_w * a_back[c] * n_back
+                       * gauss_lobe(theta_i, theta_o + shift[c], var_b[c]))
+        t_f = f32(D_FORWARD) * ti.exp(n * log_af[c]) * vis
         if t_f - direct > 1e-4:
             s_g = gauss_lobe(theta_i, theta_o, f32(4.0) * v0 + var_f) * albedo[c] * f32(0.5 / math.pi)
-            f_back_g = a_back * n_back * gauss_lobe(theta_i, theta_o + shift, var_b + var_f)
+            f_back_g = a_back[c] * n_back * gauss_lobe(theta_i, theta_o + shift[c], var_b[c] + var_f)
             out[c] += (t_f - direct) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g)
     return out
 
@@ -548,20 +619,39 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
     `shadows.shadow_terms`. dual: Zinke's dual scattering (`dual_scattering`); otherwise single
     scattering shadowed by exp(-density x opacity) x visibility. Tangent from the strand
     neighbours (root to tip). masked: only vertices with mark[i] != 0 (the others' rgba is left
-    as it was). Shapes (V,). One thread per vertex."""
-    for i in range(n):
-        if masked and mark[i] == 0:
-            continue
-        t = unit(x[nbr[i][1]] - x[nbr[i][0]])
-        v = unit(eye - x[i])
-        s, albedo = fibre_terms(t, to_light, v, sigma[i], beta_m[i], shifts, ntab, atab)
-        tm = terms[i]
-        f = s * (ti.exp(-density * tm[0]) * tm[1])
-        if dual:
-            f = dual_scattering(t, to_light, v, sigma[i], beta_m[i], s, albedo, tm, shifts[6], dtab)
-        c = irradiance * f
-        if first:
-            c += ambient * albedo
-            rgba[i] = vec4f(c[0], c[1], c[2], opacity)
-        else:
-            rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
+    as it was). Shapes (V,). SHADE_CHUNKS threads, each over a run of vertices."""
+    # consecutive vertices mostly belong to one strand and share its absorption and
+    # roughness: each thread walks a run of vertices and recomputes the fibre's constants
+    # (table coordinates, lobe constants, dual scattering's) only when they change; the same
+    # inputs give the same bits, so the result does not depend on the runs
+    chunk = (n + SHADE_CHUNKS - 1) // SHADE_CHUNKS
+    for ch in range(SHADE_CHUNKS):
+        sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
+        us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
+        bf2, a_back, shift, var_b, log_af = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                             vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                             vec3f(0.0, 0.0, 0.0))
+        for i in range(ch * chunk, ti.min(n, (ch + 1) * chunk)):
+            if masked and mark[i] == 0:
+                continue
+            sg, bm = sigma[i], beta_m[i]
+            if sg[0] != sg_k[0] or sg[1] != sg_k[1] or sg[2] != sg_k[2] or bm != bm_k:
+                sg_k, bm_k = sg, bm
+                us = vec3f(sigma_coord(sg[0]), sigma_coord(sg[1]), sigma_coord(sg[2]))
+                v0 = lobe_variance(bm)
+                cv = fibre_constants(v0)
+                bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, shifts[6], dtab)
+            t = unit(x[nbr[i][1]] - x[nbr[i][0]])
+            v = unit(eye - x[i])
+            s, albedo = fibre_terms_c(t, to_light, v, us, v0, cv, shifts, ntab, atab)
+            tm = terms[i]
+            f = s * (ti.exp(-density * tm[0]) * tm[1])
+            if dual:
+                f = dual_scattering_c(t, to_light, v, v0, s, albedo, tm, bf2, a_back, shift,
+                                      var_b, log_af)
+            c = irradiance * f
+            if first:
+                c += ambient * albedo
+                rgba[i] = vec4f(c[0], c[1], c[2], opacity)
+            else:
+                rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
