@@ -11,6 +11,7 @@ The stages, in order (each a kernel or two from camera, shadows, shading and ras
 """
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -22,6 +23,7 @@ from .runtime import buffer, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
+from . import tiles
 from .tiles import bin_hair, composite_binned
 
 vec2f = ti.types.vector(2, ti.f32)
@@ -198,6 +200,14 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
             _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap, masked)
 
 
+class _Buffers(NamedTuple):
+    """A rendered frame's device buffers at the camera's resolution."""
+
+    image: object
+    rgb: object
+    alpha: object
+
+
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                    lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                    settings: RenderSettings = RenderSettings()) -> dict:
@@ -207,6 +217,12 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     lights: a list of `DirectionalLight` and `AmbientLight`; or lighting: the older
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
     [0, 1] behind everything."""
+    b = _render(camera, hair, meshes, lights, lighting, background, settings)
+    return {"image": b.image.to_numpy(), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
+
+
+def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Buffers:
+    """Render one frame into device buffers (see `render_buffers`)."""
     _check(camera, hair, meshes, settings)
     directional, ambient = _lights(lights, lighting)
     bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
@@ -238,7 +254,7 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
     _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
-                  masked=bins is not None)
+                  masked=bins is not None and tiles.CULL_HIDDEN)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
@@ -256,15 +272,15 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u8, (camera.height, camera.width, 3))
     finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
-    return {"image": image.to_numpy(), "rgb": out_rgb.to_numpy(), "alpha": out_alpha.to_numpy()}
+    return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha)
 
 
 def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                  lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                  settings: RenderSettings = RenderSettings()) -> np.ndarray:
-    """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`."""
-    return render_buffers(camera, hair=hair, meshes=meshes, lights=lights, lighting=lighting,
-                          background=background, settings=settings)["image"]
+    """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
+    (this reads back the image only)."""
+    return _render(camera, hair, meshes, lights, lighting, background, settings).image.to_numpy()
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),

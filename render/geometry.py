@@ -79,7 +79,8 @@ class Hair:
     Derived at construction (float32 / int32, V vertices, E segments): `vertices` (V, 3),
     `vertex_colours` (V, 3) linear, `vertex_widths` (V,), `segments` (E,) index of each
     segment's first vertex, `neighbours` (V, 2) previous and next vertex on the strand (the
-    vertex itself at the ends), used for tangents.
+    vertex itself at the ends), used for tangents. They are read-only (the renderer keeps
+    device copies of a groom it renders again).
     """
 
     points: object
@@ -127,6 +128,14 @@ class Hair:
         set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
         set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
         self._set_optics(counts, srgb_to_linear(colours))
+        # derived once and never changed: read-only, so the renderer may keep device copies
+        for name in ("vertices", "vertex_colours", "vertex_widths", "segments", "neighbours",
+                     "strand_starts", "vertex_sigma", "vertex_beta_m"):
+            a = getattr(self, name)
+            if a.base is not None:   # a view could change through its base: own the data
+                a = a.copy()
+                set_(name, a)
+            a.flags.writeable = False
 
     def subset(self, fraction: float) -> dict:
         """Level of detail: a fixed, seeded `fraction` of the strands (the same strands for
@@ -150,6 +159,8 @@ class Hair:
                                seg=seg.astype(np.int32), nbr=remap[self.neighbours[idx]].astype(np.int32),
                                colour=self.vertex_colours[idx], sigma=self.vertex_sigma[idx],
                                beta_m=self.vertex_beta_m[idx])
+        for a in cache[fraction].values():
+            a.flags.writeable = False
         return cache[fraction]
 
     def _set_optics(self, counts: np.ndarray, linear: np.ndarray) -> None:

@@ -28,6 +28,9 @@ TILE = 16
 N_BINS = 256
 OPAQUE = 1e-3
 REDUCE_CHUNKS = 64
+# skip tiles where meshes hide a segment, and shade only vertices of binned segments; tests
+# switch it off to check that this changes no pixel
+CULL_HIDDEN = True
 _GAPS = (1750, 701, 301, 132, 57, 23, 10, 4, 1)
 
 
@@ -302,7 +305,10 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     lo, hi = (float(v) for v in zr.to_numpy())
     zrange = (lo, N_BINS / max(hi - lo, 1e-6)) if hi >= lo else (0.0, 1.0)
     far = buffer("tile_far", f32, (n_tiles,))
-    tile_far_depth(mesh_key, far)
+    if CULL_HIDDEN:
+        tile_far_depth(mesh_key, far)
+    else:
+        far.fill(float("inf"))
     cursor = buffer("tile_cursor", ti.i32, (n_tiles * N_BINS,))
     offsets = buffer("tile_offsets", ti.i32, (n_tiles * N_BINS + 1,))
     cursor.fill(0)
