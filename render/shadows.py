@@ -113,6 +113,17 @@ def texel_of(p: vec4f, size: ti.i32):
     return i, j
 
 
+@ti.func
+def slab_of(bounds: ti.template(), layers: ti.i32, dz: f32) -> ti.i32:
+    """The slab holding depth dz [m] behind z0: the last k < layers with bounds[k] <= dz (0
+    if none). The bounds increase, so that is how many of bounds[1:layers] are <= dz: a
+    count with a fixed trip, no data-dependent exit to mispredict."""
+    slab = 0
+    for k in range(1, layers):
+        slab += ti.select(bounds[k] <= dz, 1, 0)
+    return slab
+
+
 @ti.kernel
 def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                      screen: ti.types.ndarray(dtype=vec4f, ndim=1),
@@ -154,9 +165,7 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             w = width[k] + (width[k + 1] - width[k]) * t
             i, j = texel_of(p, size)
             dz = p[2] - z0[j, i]
-            slab = 0
-            while slab < layers - 1 and bounds[slab + 1] <= dz:
-                slab += 1
+            slab = slab_of(bounds, layers, dz)
             amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
             ti.atomic_add(fixed[j, i, slab], ti.cast(ti.round(amount * OPACITY_STEPS), ti.i64))
 
@@ -181,9 +190,7 @@ def column_opacity(z0: ti.template(), opacity: ti.template(), bounds: ti.templat
     dz = depth - z0[j, i]
     if dz > 0.0:
         layers = opacity.shape[2]
-        slab = 0
-        while slab < layers - 1 and bounds[slab + 1] <= dz:
-            slab += 1
+        slab = slab_of(bounds, layers, dz)
         before = f32(0.0)
         if slab > 0:
             before = opacity[j, i, slab - 1]
