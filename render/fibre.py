@@ -306,6 +306,19 @@ _LOG_2PI = math.log(2.0 * math.pi)
 _I0_COEFFS = [1.0 / (4.0 ** i * math.factorial(i) ** 2) for i in range(16)]  # I0 = sum c_i x^2i
 
 @ti.func
+def fexp(x: f32) -> f32:
+    """e^x in float32, inline: within ~2 ulp of libm's expf for x in [-87.3, 88.3] (x is
+    clamped to that range: e^-87.3 ~ 1e-38 stands for anything smaller). Shading evaluates
+    ~30 exponentials per vertex and light, and each libm call spills every vector register."""
+    xc = ti.math.clamp(x, f32(-87.3), f32(88.3))
+    k = ti.floor(xc * f32(1.4426950408889634) + f32(0.5))
+    r = xc - k * f32(0.693145751953125) - k * f32(1.428606765330187e-06)   # |r| <= ln2 / 2
+    p = f32(1.0) + r * (f32(1.0) + r * (f32(0.5) + r * (f32(1.0 / 6.0) + r * (
+        f32(1.0 / 24.0) + r * (f32(1.0 / 120.0) + r * f32(1.0 / 720.0))))))
+    return p * ti.bit_cast((ti.cast(k, ti.i32) + 127) << 23, f32)
+
+
+@ti.func
 def log_i0(x: f32) -> f32:
     """log of the modified Bessel function I0(x), x >= 0: a series below 12, asymptotic above."""
     r = f32(0.0)
@@ -343,14 +356,14 @@ def m_lobe_c(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, inv_v: f32, c_v: f3
     b = sin_i * sin_o * inv_v
     r = f32(0.0)
     if a > 12.0:
-        r = ti.exp(a + f32(0.5) * (f32(-_LOG_2PI) - ti.log(a) + f32(1.0) / (f32(8.0) * a))
+        r = fexp(a + f32(0.5) * (f32(-_LOG_2PI) - ti.log(a) + f32(1.0) / (f32(8.0) * a))
                    - b - c_v)
     else:
         val, x2i = f32(0.0), f32(1.0)
         for i in ti.static(range(16)):
             val += f32(_I0_COEFFS[i]) * x2i
             x2i *= a * a
-        r = val * ti.exp(-b - c_v)
+        r = val * fexp(-b - c_v)
     return r
 
 
@@ -375,12 +388,14 @@ def n_lookup(ntab: ti.template(), p: ti.i32, ut: f32, up: f32, us: f32) -> f32:
     ip = ti.min(ti.cast(up, ti.i32), N_PHI - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fp, fs = ut - ti.cast(it, f32), up - ti.cast(ip, f32), us - ti.cast(js, f32)
+    # the table is flat (row-major p, theta, phi, sigma): constant strides, one base index
+    base = ((p * N_THETA + it) * N_PHI + ip) * N_SIGMA + js
     r = f32(0.0)
     for a, b, c in ti.static(ti.ndrange(2, 2, 2)):
         w = ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fp * b + (f32(1.0) - fp) * (1 - b))
              * (fs * c + (f32(1.0) - fs) * (1 - c)))
-        r += w * ntab[p, it + a, ip + b, js + c]
-    return ti.exp(r)
+        r += w * ntab[base + (a * N_PHI + b) * N_SIGMA + c]
+    return fexp(r)
 
 
 @ti.func
@@ -389,11 +404,12 @@ def a_lookup(atab: ti.template(), k: ti.i32, ut: f32, us: f32) -> f32:
     it = ti.min(ti.cast(ut, ti.i32), N_THETA - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fs = ut - ti.cast(it, f32), us - ti.cast(js, f32)
+    base = (k * N_THETA + it) * N_SIGMA + js   # flat, row-major (k, theta, sigma)
     r = f32(0.0)
     for a, c in ti.static(ti.ndrange(2, 2)):
         r += ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fs * c + (f32(1.0) - fs) * (1 - c))
-              * atab[k, it + a, js + c])
-    return ti.exp(r)
+              * atab[base + a * N_SIGMA + c])
+    return fexp(r)
 
 
 @ti.func
@@ -455,8 +471,8 @@ def _fibre_kernel(n: ti.i32, t: ti.types.ndarray(dtype=vec3f, ndim=1),
                   l: ti.types.ndarray(dtype=vec3f, ndim=1),
                   v: ti.types.ndarray(dtype=vec3f, ndim=1), sigma: vec3f, beta_m: f32,
                   shifts: ti.types.vector(8, ti.f32),
-                  ntab: ti.types.ndarray(dtype=f32, ndim=4),
-                  atab: ti.types.ndarray(dtype=f32, ndim=3),
+                  ntab: ti.types.ndarray(dtype=f32, ndim=1),
+                  atab: ti.types.ndarray(dtype=f32, ndim=1),
                   out: ti.types.ndarray(dtype=vec3f, ndim=1),
                   albedo: ti.types.ndarray(dtype=vec3f, ndim=1)):
     for i in range(n):
@@ -469,8 +485,8 @@ _device_tables: dict = {}
 
 
 def upload_tables(material: HairMaterial) -> tuple:
-    """Device copies of the logarithms of the material's (N, A) tables and of its dual
-    scattering table, kept across frames (a few materials)."""
+    """Device copies (flat, row-major) of the logarithms of the material's (N, A) tables and
+    of its dual scattering table, kept across frames (a few materials)."""
     key = (round(float(material.beta_n), 6), round(float(material.ior), 6))
     if key not in _device_tables:
         if len(_device_tables) >= 8:
@@ -478,9 +494,10 @@ def upload_tables(material: HairMaterial) -> tuple:
         n_tab, a_tab = (np.log(np.maximum(t, 1e-30)).astype(np.float32) for t in fibre_tables(*key))
         d_tab = dual_table(*key)
         devices = []
-        for t in (n_tab, a_tab, d_tab):
-            dev = ti.ndarray(f32, t.shape)
-            dev.from_numpy(t)
+        for t in (n_tab, a_tab, d_tab):   # flattened, row-major: the lookups index them flat
+            flat = np.ascontiguousarray(t, dtype=np.float32).ravel()
+            dev = ti.ndarray(f32, flat.shape)
+            dev.from_numpy(flat)
             devices.append(dev)
         _device_tables[key] = tuple(devices)
     return _device_tables[key]
@@ -512,7 +529,7 @@ def fibre_scattering(material: HairMaterial, tangents, to_light, to_eye) -> dict
 def d_lookup(dtab: ti.template(), k: ti.i32, us: f32) -> f32:
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     fs = us - ti.cast(js, f32)
-    return dtab[k, js] * (f32(1.0) - fs) + dtab[k, js + 1] * fs
+    return dtab[k * N_SIGMA + js] * (f32(1.0) - fs) + dtab[k * N_SIGMA + js + 1] * fs
 
 
 @ti.func
@@ -520,7 +537,7 @@ def gauss_lobe(theta_i: f32, theta_o: f32, var: f32) -> f32:
     """Gaussian stand-in for a broad d'Eon lobe of variance var: peak at theta_i = -theta_o,
     unit integral over theta_i (cheaper than `m_lobe`; used for dual scattering's lobes)."""
     d = theta_i + theta_o
-    return ti.exp(-d * d / (f32(2.0) * var)) * ti.rsqrt(f32(2.0 * math.pi) * var)
+    return fexp(-d * d / (f32(2.0) * var)) * ti.rsqrt(f32(2.0 * math.pi) * var)
 
 
 @ti.func
@@ -576,8 +593,8 @@ def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: v
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
     theta_i, theta_o = ti.asin(sin_i), ti.asin(sin_o)
-    direct = ti.exp(-n) * vis
-    back_w = f32(1.0) - ti.exp(-terms[2])
+    direct = fexp(-n) * vis
+    back_w = f32(1.0) - fexp(-terms[2])
     lp, vp = l - sin_i * t, v - sin_o * t
     den_phi = ti.sqrt(lp.dot(lp) * vp.dot(vp))
     cphi = f32(1.0)
@@ -591,7 +608,7 @@ def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: v
         if direct * back_w > 1e-4:
             out[c] += (direct * f32(D_BACK) * back_w * a_back[c] * n_back
                        * gauss_lobe(theta_i, theta_o + shift[c], var_b[c]))
-        t_f = f32(D_FORWARD) * ti.exp(n * log_af[c]) * vis
+        t_f = f32(D_FORWARD) * fexp(n * log_af[c]) * vis
         if t_f - direct > 1e-4:
             s_g = gauss_lobe(theta_i, theta_o, f32(4.0) * v0 + var_f) * albedo[c] * f32(0.5 / math.pi)
             f_back_g = a_back[c] * n_back * gauss_lobe(theta_i, theta_o + shift[c], var_b[c] + var_f)
@@ -608,9 +625,9 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          eye: vec3f, to_light: vec3f, irradiance: vec3f, ambient: vec3f,
                          first: ti.i32, dual: ti.i32, density: f32,
                          shifts: ti.types.vector(8, ti.f32),
-                         ntab: ti.types.ndarray(dtype=f32, ndim=4),
-                         atab: ti.types.ndarray(dtype=f32, ndim=3),
-                         dtab: ti.types.ndarray(dtype=f32, ndim=2),
+                         ntab: ti.types.ndarray(dtype=f32, ndim=1),
+                         atab: ti.types.ndarray(dtype=f32, ndim=1),
+                         dtab: ti.types.ndarray(dtype=f32, ndim=1),
                          masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
     """rgba[i] (+)= (linear radiance of vertex i under one directional light of `irradiance`
@@ -645,7 +662,7 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
             v = unit(eye - x[i])
             s, albedo = fibre_terms_c(t, to_light, v, us, v0, cv, shifts, ntab, atab)
             tm = terms[i]
-            f = s * (ti.exp(-density * tm[0]) * tm[1])
+            f = s * (fexp(-density * tm[0]) * tm[1])
             if dual:
                 f = dual_scattering_c(t, to_light, v, v0, s, albedo, tm, bf2, a_back, shift,
                                       var_b, log_af)
