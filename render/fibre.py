@@ -32,6 +32,8 @@ import taichi as ti
 from .camera import f32, unit, vec3f, vec4f
 from .runtime import buffer, ensure_init, upload
 
+vec6f = ti.types.vector(6, ti.f32)
+
 # absorption of the two melanins per unit concentration and fibre radius (d'Eon et al. 2011)
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
@@ -433,37 +435,52 @@ def fibre_terms_c(t: vec3f, l: vec3f, v: vec3f, us: vec3f, v0: f32, cv: vec3f,
                   shifts: ti.template(), ntab: ti.template(), atab: ti.template()):
     """`fibre_terms` with the fibre's constants given: us the absorption's table coordinates
     per channel (`sigma_coord`), v0 its `lobe_variance`, cv its `fibre_constants`."""
-    sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
+    vo, tilt, albedo, a3 = fibre_view(t, v, us, shifts, atab)
+    return fibre_light(t, l, v, vo, tilt, a3, us, v0, cv, ntab), albedo
+
+
+@ti.func
+def fibre_view(t: vec3f, v: vec3f, us: vec3f, shifts: ti.template(), atab: ti.template()):
+    """What of `fibre_terms` depends on the view alone (shared by all lights): vo = (sin
+    theta_o, cos theta_o, theta table coordinate, theta_o), the tilted view angles of R, TT
+    and TRT (sin, cos each), the albedo and the TRRT+ attenuation A_3 per channel."""
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
     cos_o = ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0)))
+    ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
+    tilt = vec6f(sin_o * shifts[1] - cos_o * shifts[0], ti.abs(cos_o * shifts[1] + sin_o * shifts[0]),
+                 sin_o * shifts[3] + cos_o * shifts[2], ti.abs(cos_o * shifts[3] - sin_o * shifts[2]),
+                 sin_o * shifts[5] + cos_o * shifts[4], ti.abs(cos_o * shifts[5] - sin_o * shifts[4]))
+    albedo, a3 = vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0)
+    for c in ti.static(range(3)):
+        a3[c] = a_lookup(atab, 1, ut, us[c])
+        albedo[c] = a_lookup(atab, 0, ut, us[c])
+    return vec4f(sin_o, cos_o, ut, ti.asin(sin_o)), tilt, albedo, a3
+
+
+@ti.func
+def fibre_light(t: vec3f, l: vec3f, v: vec3f, vo: vec4f, tilt: vec6f, a3: vec3f,
+                us: vec3f, v0: f32, cv: vec3f, ntab: ti.template()) -> vec3f:
+    """S(l, v) [1/sr] given the view's part (`fibre_view`) and the fibre's constants."""
+    sin_o, cos_o, ut = vo[0], vo[1], vo[2]
+    sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
+    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
     lp, vp = l - sin_i * t, v - sin_o * t
     den = ti.sqrt(lp.dot(lp) * vp.dot(vp))
     cphi = f32(1.0)
     if den > 1e-12:
         cphi = ti.math.clamp(lp.dot(vp) / den, f32(-1.0), f32(1.0))
-    ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
     up = ti.acos(cphi) * f32((N_PHI - 1) / math.pi)
     inv_v0 = f32(1.0) / v0
-    # the tilted view angles of R, TT and TRT
-    s_r = sin_o * shifts[1] - cos_o * shifts[0]
-    c_r = ti.abs(cos_o * shifts[1] + sin_o * shifts[0])
-    s_tt = sin_o * shifts[3] + cos_o * shifts[2]
-    c_tt = ti.abs(cos_o * shifts[3] - sin_o * shifts[2])
-    s_trt = sin_o * shifts[5] + cos_o * shifts[4]
-    c_trt = ti.abs(cos_o * shifts[5] - sin_o * shifts[4])
-    m_r = m_lobe_c(sin_i, cos_i, s_r, c_r, inv_v0, cv[0])
-    m_tt = m_lobe_c(sin_i, cos_i, s_tt, c_tt, f32(4.0) * inv_v0, cv[1])
-    m_trt = m_lobe_c(sin_i, cos_i, s_trt, c_trt, f32(0.25) * inv_v0, cv[2])
+    m_r = m_lobe_c(sin_i, cos_i, tilt[0], tilt[1], inv_v0, cv[0])
+    m_tt = m_lobe_c(sin_i, cos_i, tilt[2], tilt[3], f32(4.0) * inv_v0, cv[1])
+    m_trt = m_lobe_c(sin_i, cos_i, tilt[4], tilt[5], f32(0.25) * inv_v0, cv[2])
     m_rest = m_lobe_c(sin_i, cos_i, sin_o, cos_o, f32(0.25) * inv_v0, cv[2]) * f32(0.5 / math.pi)
     r = m_r * n_lookup(ntab, 0, ut, up, f32(0.0))
     s = vec3f(r, r, r)
-    albedo = vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
         s[c] += (m_tt * n_lookup(ntab, 1, ut, up, us[c]) + m_trt * n_lookup(ntab, 2, ut, up, us[c])
-                 + m_rest * a_lookup(atab, 1, ut, us[c]))
-        albedo[c] = a_lookup(atab, 0, ut, us[c])
-    return s, albedo
+                 + m_rest * a3[c])
+    return s
 
 
 @ti.kernel
@@ -555,7 +572,9 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     v0 = lobe_variance(beta_m)
     us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
     bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, alpha, dtab)
-    return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af)
+    theta_o = ti.asin(ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0)))
+    return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af,
+                             theta_o)
 
 
 @ti.func
@@ -587,12 +606,13 @@ def dual_constants(us: vec3f, v0: f32, alpha: f32, dtab: ti.template()):
 @ti.func
 def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: vec3f,
                       terms: vec3f, bf2: vec3f, a_back: vec3f, shift: vec3f, var_b: vec3f,
-                      log_af: vec3f) -> vec3f:
-    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants` given."""
+                      log_af: vec3f, theta_o: f32) -> vec3f:
+    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants`, and the
+    view angle theta_o, given."""
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    theta_i, theta_o = ti.asin(sin_i), ti.asin(sin_o)
+    theta_i = ti.asin(sin_i)
     direct = fexp(-n) * vis
     back_w = f32(1.0) - fexp(-terms[2])
     lp, vp = l - sin_i * t, v - sin_o * t
@@ -621,22 +641,26 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
                          sigma: ti.types.ndarray(dtype=vec3f, ndim=1),
                          beta_m: ti.types.ndarray(dtype=f32, ndim=1),
-                         terms: ti.types.ndarray(dtype=vec3f, ndim=1), opacity: f32,
-                         eye: vec3f, to_light: vec3f, irradiance: vec3f, ambient: vec3f,
-                         first: ti.i32, dual: ti.i32, density: f32,
+                         n_lights: ti.i32, to_light: ti.types.ndarray(dtype=vec3f, ndim=1),
+                         irradiance: ti.types.ndarray(dtype=vec3f, ndim=1),
+                         terms: ti.types.ndarray(dtype=vec3f, ndim=2), opacity: f32,
+                         eye: vec3f, ambient: vec3f, dual: ti.i32, density: f32,
                          shifts: ti.types.vector(8, ti.f32),
                          ntab: ti.types.ndarray(dtype=f32, ndim=1),
                          atab: ti.types.ndarray(dtype=f32, ndim=1),
                          dtab: ti.types.ndarray(dtype=f32, ndim=1),
                          masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
-    """rgba[i] (+)= (linear radiance of vertex i under one directional light of `irradiance`
-    [W/m^2], plus, when `first`, the uniform `ambient` radiance; opacity). terms[i]: the
-    vertex's (hair opacity towards the light, mesh visibility, hair opacity behind it) from
-    `shadows.shadow_terms`. dual: Zinke's dual scattering (`dual_scattering`); otherwise single
-    scattering shadowed by exp(-density x opacity) x visibility. Tangent from the strand
-    neighbours (root to tip). masked: only vertices with mark[i] != 0 (the others' rgba is left
-    as it was). Shapes (V,). SHADE_CHUNKS threads, each over a run of vertices."""
+    """rgba[i] = (linear radiance of vertex i under n_lights directional lights, light k from
+    direction to_light[k] with `irradiance[k]` [W/m^2], plus the uniform `ambient` radiance;
+    opacity). terms[k, i]: the vertex's (hair opacity towards light k, mesh visibility, hair
+    opacity behind it) from `shadows.shadow_terms`. dual: Zinke's dual scattering
+    (`dual_scattering`); otherwise single scattering shadowed by exp(-density x opacity) x
+    visibility. Tangent from the strand neighbours (root to tip). The view's part of the
+    shading is computed once for all lights; the lights add in order after the first (with
+    the ambient), as separate passes would. masked: only vertices with mark[i] != 0 (the
+    others' rgba is left as it was). Shapes (V,). SHADE_CHUNKS threads, each over a run of
+    vertices."""
     # consecutive vertices mostly belong to one strand and share its absorption and
     # roughness: each thread walks a run of vertices and recomputes the fibre's constants
     # (table coordinates, lobe constants, dual scattering's) only when they change; the same
@@ -660,15 +684,18 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                 bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, shifts[6], dtab)
             t = unit(x[nbr[i][1]] - x[nbr[i][0]])
             v = unit(eye - x[i])
-            s, albedo = fibre_terms_c(t, to_light, v, us, v0, cv, shifts, ntab, atab)
-            tm = terms[i]
-            f = s * (fexp(-density * tm[0]) * tm[1])
-            if dual:
-                f = dual_scattering_c(t, to_light, v, v0, s, albedo, tm, bf2, a_back, shift,
-                                      var_b, log_af)
-            c = irradiance * f
-            if first:
-                c += ambient * albedo
-                rgba[i] = vec4f(c[0], c[1], c[2], opacity)
-            else:
-                rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
+            vo, tilt, albedo, a3 = fibre_view(t, v, us, shifts, atab)
+            c = vec3f(0.0, 0.0, 0.0)
+            for k in range(n_lights):
+                l = to_light[k]
+                s = fibre_light(t, l, v, vo, tilt, a3, us, v0, cv, ntab)
+                tm = terms[k, i]
+                f = s * (fexp(-density * tm[0]) * tm[1])
+                if dual:
+                    f = dual_scattering_c(t, l, v, v0, s, albedo, tm, bf2, a_back, shift,
+                                          var_b, log_af, vo[3])
+                if k == 0:
+                    c = irradiance[k] * f + ambient * albedo
+                else:
+                    c += irradiance[k] * f
+            rgba[i] = vec4f(c[0], c[1], c[2], opacity)

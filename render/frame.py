@@ -100,7 +100,6 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
                 width_px=buffer("hair_width_px", f32, (nv,)),
                 screen=buffer("hair_screen", vec4f, (nv,), 4),
                 shadow=buffer("hair_shadow", f32, (nv,)),
-                terms=buffer("hair_shadow_terms", vec3f, (nv,), 3),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
                 mark=buffer("hair_mark", ti.i32, (nv,)),
                 n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
@@ -156,36 +155,30 @@ def _lights(lights, lighting) -> tuple[list, np.ndarray]:
     return split_lights(lights)
 
 
-def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre,
-                smap, masked: bool):
-    """Shade the hair vertices for one directional light (adding to earlier lights); masked:
-    only the vertices marked in hd["mark"]."""
-    to_light = light.to_light
+def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
+                           settings: RenderSettings, smap, masked: bool):
+    """Kajiya-Kay: shade the hair vertices for one directional light (adding to earlier
+    lights); masked: only the vertices marked in hd["mark"]."""
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
-    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                   smap.params, int(masked), hd["mark"])
-    if settings.hair_model == "fibre":
-        ntab, atab, dtab = upload_tables(fibre)
-        points_shadow_terms(hd["n_vertices"], hd["x"], *shadow_args, hd["terms"])
-        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             hd["terms"], hd["opacity"], eye, to_light, irradiance, ambient,
-                             int(first), int(settings.multiple_scattering),
-                             np.float32(settings.shadows.density), fibre.shifts(), ntab, atab,
-                             dtab, int(masked), hd["mark"], hd["rgba"])
-    else:
-        points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
-        shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
-                            hd["opacity"], eye, to_light, irradiance / np.float32(np.pi), ambient,
-                            int(first), settings.hair_shading.packed(), int(masked), hd["mark"],
-                            hd["rgba"])
+    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0, smap.opacity,
+                         smap.bounds, smap.mesh_key, smap.params, int(masked), hd["mark"],
+                         hd["shadow"])
+    shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
+                        hd["opacity"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
+                        int(first), settings.hair_shading.packed(), int(masked), hd["mark"],
+                        hd["rgba"])
 
 
 def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
                   masked: bool = False):
-    """Per directional light: its shadow maps, the meshes' and the hair's shading, adding up
-    (the first pass also writes the ambient term and the background). masked: shade only the
-    hair vertices marked in hd["mark"]."""
+    """Per directional light: its shadow maps and the meshes' shading, adding up (the first
+    pass also writes the ambient term and the background), and the hair's shadow terms; then
+    the fibre shading of the hair under all lights in one pass (Kajiya-Kay: per light).
+    masked: shade only the hair vertices marked in hd["mark"]."""
     passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
+    fibre = settings.hair_model == "fibre" and hd["n_vertices"] > 0
+    if fibre:
+        terms = buffer("hair_shadow_terms", vec3f, (len(passes), max(hd["n_vertices"], 1)), 3)
     for k, light in enumerate(passes):
         shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
         smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
@@ -196,8 +189,23 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
                    md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
                    bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
                    smap.params, int(k == 0), base)
-        if hd["n_vertices"]:
-            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap, masked)
+        if fibre:
+            points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
+                                smap.opacity, smap.bounds, smap.mesh_key, smap.params,
+                                int(masked), hd["mark"], k, terms)
+        elif hd["n_vertices"]:
+            _shade_hair_kajiya_kay(hd, eye, light, ambient, k == 0, settings, smap, masked)
+    if fibre:
+        material = hair.fibre
+        ntab, atab, dtab = upload_tables(material)
+        to_light = np.array([light.to_light for light in passes], np.float32)
+        irradiance = np.array([light.irradiance_rgb for light in passes], np.float32)
+        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
+                             len(passes), upload("hair_to_light", to_light, vec3f, 3),
+                             upload("hair_irradiance", irradiance, vec3f, 3), terms,
+                             hd["opacity"], eye, ambient, int(settings.multiple_scattering),
+                             np.float32(settings.shadows.density), material.shifts(), ntab,
+                             atab, dtab, int(masked), hd["mark"], hd["rgba"])
 
 
 class _Buffers(NamedTuple):

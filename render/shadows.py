@@ -239,13 +239,13 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         bounds: ti.types.ndarray(dtype=f32, ndim=1),
                         mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                        out: ti.types.ndarray(dtype=vec3f, ndim=1)):
-    """out[i] = shadow_terms at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
-    thread per point."""
+                        row: ti.i32, out: ti.types.ndarray(dtype=vec3f, ndim=2)):
+    """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
+    where mark[i] != 0. One thread per point."""
     for k in range(n):
         if masked and mark[k] == 0:
             continue
-        out[k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+        out[row, k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
 @ti.kernel
