@@ -259,7 +259,7 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
         if first:
             rgba[i] = vec4f(c[0], c[1], c[2], opacity)
         else:
-            rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
+            rgba[i] = rgba[i] + vec4f(c[0], c[1], c[2], 0.0)   # one thread per vertex: no atomic
 
 
 @ti.kernel
@@ -326,4 +326,4 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
         if first:
             base[py, px] = c
         elif key != empty_key():
-            base[py, px] += c
+            base[py, px] = base[py, px] + c   # one thread per pixel: no atomic add

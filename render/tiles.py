@@ -3,9 +3,11 @@
 The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into the tiles its
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
-tile walks its bins front to back, sorts each bin's segments exactly by depth (Shell sort on
-64-bit keys: depth bits and first vertex), and blends each segment's fragments into the tile's
-pixels front to back:
+tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
+first vertex), walks them front to back (reading each segment's ends one iteration ahead:
+those reads are cache misses) and blends each segment's fragments into the tile's pixels
+front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
+be an atomic add):
 
     C += T alpha c,   T *= 1 - alpha        (T: transmittance so far, 1 at the start)
 
@@ -153,6 +155,12 @@ def exclusive_scan(n: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
 
 
 @ti.func
+def vertex_of(key: ti.i64) -> ti.i32:
+    """The first vertex of the segment of a `sort_key`."""
+    return ti.cast(key & ti.i64(0x7FFFFFFF), ti.i32)
+
+
+@ti.func
 def sort_key(i: ti.i32, a: vec4f, b: vec4f) -> ti.i64:
     """float32 bits of the mid-depth of the segment from vertex i (a) to i + 1 (b) << 32 | i:
     for depths > 0 the integer order is (depth, index) order (segments are numbered in the
@@ -209,35 +217,43 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                 out_alpha[py, px] = f32(1.0)
         n_open = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
         for bin_ in range(N_BINS):
+            sort_bin(offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1], items)
+        # the tile's segments in depth order; each one's ends are read an iteration ahead:
+        # the reads jump around the hair's arrays (cache misses) and overlap with blending
+        k0, k1 = offsets[tile * N_BINS], offsets[(tile + 1) * N_BINS]
+        zero = vec4f(0.0, 0.0, 0.0, 0.0)
+        a, b, wa, wb, ca, cb = zero, zero, f32(0.0), f32(0.0), zero, zero
+        if k0 < k1:
+            j = vertex_of(items[k0])
+            a, b, wa, wb = screen[j], screen[j + 1], width_px[j], width_px[j + 1]
+            ca, cb = rgba[j], rgba[j + 1]
+        for k in range(k0, k1):
             if n_open > 0:
-                s0, s1 = offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1]
-                sort_bin(s0, s1, items)
-                for k in range(s0, s1):
-                    if n_open > 0:
-                        i = ti.cast(items[k] & ti.i64(0x7FFFFFFF), ti.i32)
-                        n_open -= blend_segment(i, tx0, tx1, ty0, ty1, screen, width_px, rgba,
-                                                mesh_key, out_rgb, out_alpha)
+                j = vertex_of(items[ti.min(k + 1, k1 - 1)])
+                a_next, b_next = screen[j], screen[j + 1]
+                wa_next, wb_next = width_px[j], width_px[j + 1]
+                ca_next, cb_next = rgba[j], rgba[j + 1]
+                n_open -= blend_segment(a, b, wa, wb, ca, cb, tx0, tx1, ty0, ty1, mesh_key,
+                                        out_rgb, out_alpha)
+                a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
         for py in range(ty0, ty1 + 1):
             for px in range(tx0, tx1 + 1):
                 t = out_alpha[py, px]
-                out_rgb[py, px] += t * base[py, px]
+                out_rgb[py, px] = out_rgb[py, px] + t * base[py, px]
                 out_alpha[py, px] = f32(1.0) - t
 
 
 @ti.func
-def blend_segment(i: ti.i32, tx0: ti.i32, tx1: ti.i32, ty0: ti.i32, ty1: ti.i32,
-                  screen: ti.template(), width_px: ti.template(), rgba: ti.template(),
-                  mesh_key: ti.template(), out_rgb: ti.template(),
-                  out_alpha: ti.template()) -> ti.i32:
-    """Blend the fragments of the segment from vertex i to i + 1 inside the tile [tx0, tx1] x [ty0, ty1] behind what is
-    there; returns how many pixels became opaque. Walks the footprint column by column along
-    the segment's major axis, as `raster.raster_hair` does. The coverage is `raster.coverage`'s
-    with the segment's constants (1 / length^2, 1 / length, end colours) hoisted out of the
-    pixel loop: a pixel costs no division or square root unless it is covered."""
+def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, tx0: ti.i32,
+                  tx1: ti.i32, ty0: ti.i32, ty1: ti.i32, mesh_key: ti.template(),
+                  out_rgb: ti.template(), out_alpha: ti.template()) -> ti.i32:
+    """Blend the fragments of a segment (screen ends a, b, widths wa, wb [px], shaded end
+    colours ca, cb) inside the tile [tx0, tx1] x [ty0, ty1] behind what is there; returns how
+    many pixels became opaque. Walks the footprint column by column along the segment's major
+    axis, as `raster.raster_hair` does. The coverage is `raster.coverage`'s with the
+    segment's constants (1 / length^2, 1 / length) hoisted out of the pixel loop: a pixel
+    costs no division or square root unless it is covered."""
     closed = 0
-    a, b = screen[i], screen[i + 1]
-    wa, wb = width_px[i], width_px[i + 1]
-    ca, cb = rgba[i], rgba[i + 1]
     dx, dy = b[0] - a[0], b[1] - a[1]
     inv_l2 = f32(1.0) / (dx * dx + dy * dy)
     inv_len = ti.sqrt(inv_l2)
@@ -278,7 +294,10 @@ def blend_segment(i: ti.i32, tx0: ti.i32, tx1: ti.i32, ty0: ti.i32, ty1: ti.i32,
                         if depth < key_depth_of(mesh_key[py, px]):
                             c = ca * (f32(1.0) - s) + cb * s
                             alpha = cov * c[3]
-                            out_rgb[py, px] += t_old * alpha * vec3f(c[0], c[1], c[2])
+                            # a plain store: `+=` on an ndarray is an atomic add (a CAS loop
+                            # per channel on the CPU), and only this tile's thread writes here
+                            out_rgb[py, px] = (out_rgb[py, px]
+                                               + t_old * alpha * vec3f(c[0], c[1], c[2]))
                             t_new = t_old * (f32(1.0) - alpha)
                             out_alpha[py, px] = t_new
                             if t_new <= OPAQUE:
