@@ -40,8 +40,6 @@ PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
 # table grids: |theta_o| in [0, THETA_MAX], phi in [0, pi], sigma on u = log(1 + sigma / S0)
 N_THETA, N_PHI, N_SIGMA = 32, 96, 24
-# threads of the vertex shading kernel, each over a contiguous run of vertices
-SHADE_CHUNKS = 4096
 THETA_MAX = math.radians(89.5)
 SIGMA0, SIGMA_MAX = 0.25, 64.0
 U_MAX = math.log1p(SIGMA_MAX / SIGMA0)
@@ -641,6 +639,7 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
                          sigma: ti.types.ndarray(dtype=vec3f, ndim=1),
                          beta_m: ti.types.ndarray(dtype=f32, ndim=1),
+                         n_chunks: ti.i32,
                          n_lights: ti.i32, to_light: ti.types.ndarray(dtype=vec3f, ndim=1),
                          irradiance: ti.types.ndarray(dtype=vec3f, ndim=1),
                          terms: ti.types.ndarray(dtype=vec3f, ndim=2), opacity: f32,
@@ -659,14 +658,14 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
     visibility. Tangent from the strand neighbours (root to tip). The view's part of the
     shading is computed once for all lights; the lights add in order after the first (with
     the ambient), as separate passes would. masked: only vertices with mark[i] != 0 (the
-    others' rgba is left as it was). Shapes (V,). SHADE_CHUNKS threads, each over a run of
+    others' rgba is left as it was). Shapes (V,). n_chunks threads, each over a run of
     vertices."""
     # consecutive vertices mostly belong to one strand and share its absorption and
     # roughness: each thread walks a run of vertices and recomputes the fibre's constants
     # (table coordinates, lobe constants, dual scattering's) only when they change; the same
     # inputs give the same bits, so the result does not depend on the runs
-    chunk = (n + SHADE_CHUNKS - 1) // SHADE_CHUNKS
-    for ch in range(SHADE_CHUNKS):
+    chunk = (n + n_chunks - 1) // n_chunks
+    for ch in range(n_chunks):
         sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
         us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
         bf2, a_back, shift, var_b, log_af = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),

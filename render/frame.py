@@ -19,7 +19,7 @@ import taichi as ti
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
 from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
-from .runtime import buffer, ensure_init, upload
+from .runtime import buffer, chunks, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
@@ -201,7 +201,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
         to_light = np.array([light.to_light for light in passes], np.float32)
         irradiance = np.array([light.irradiance_rgb for light in passes], np.float32)
         shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             len(passes), upload("hair_to_light", to_light, vec3f, 3),
+                             chunks(hd["n_vertices"], 4096, 32), len(passes), upload("hair_to_light", to_light, vec3f, 3),
                              upload("hair_irradiance", irradiance, vec3f, 3), terms,
                              hd["opacity"], eye, ambient, int(settings.multiple_scattering),
                              np.float32(settings.shadows.density), material.shifts(), ntab,

@@ -46,6 +46,17 @@ def ensure_init() -> None:
         init()
 
 
+def on_cpu() -> bool:
+    """True when Taichi runs on the CPU (x64 or arm64)."""
+    return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+
+
+def chunks(n: int, cpu: int, per_thread_gpu: int) -> int:
+    """Threads for a kernel whose threads each walk a contiguous run of n items: `cpu` on the
+    CPU (a few per core, long runs), else one per `per_thread_gpu` items (GPUs want many)."""
+    return max(1, cpu if on_cpu() else -(-int(n) // per_thread_gpu))
+
+
 def buffer(name: str, dtype, shape: tuple, n: int = 0) -> ti.Ndarray:
     """A cached `ti.ndarray` of `dtype` (a Taichi scalar or vector type) and `shape`.
 

@@ -18,7 +18,7 @@ import taichi as ti
 
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
-from .runtime import buffer, upload
+from .runtime import buffer, chunks, upload
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -264,20 +264,17 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
         out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
-REDUCE_CHUNKS = 64
-
-
 @ti.kernel
-def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), n_chunks: ti.i32,
                  box: ti.types.ndarray(dtype=f32, ndim=1)):
-    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Each of REDUCE_CHUNKS
+    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Each of n_chunks
     threads reduces a contiguous chunk in registers, then one atomic per chunk and bound
     (atomics on fixed addresses per point cost 70 ns a point on the CPU)."""
     for k in ti.static(range(3)):
         box[k] = f32(3.0e38)
         box[k + 3] = f32(-3.0e38)
-    chunk = (n + REDUCE_CHUNKS - 1) // REDUCE_CHUNKS
-    for c in range(REDUCE_CHUNKS):
+    chunk = (n + n_chunks - 1) // n_chunks
+    for c in range(n_chunks):
         lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
         for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
             lo = ti.min(lo, x[i])
@@ -292,7 +289,7 @@ def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
     boxes = []
     for d in parts:
         box = buffer("scene_box", f32, (6,))
-        bounding_box(d["n_vertices"], d["x"], box)
+        bounding_box(d["n_vertices"], d["x"], chunks(d["n_vertices"], 64, 1024), box)
         boxes.append(box.to_numpy().astype(np.float64).reshape(2, 3))
     lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
     return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)) * 1.01, 1e-6)

@@ -29,7 +29,6 @@ from .camera import f32, vec3f, vec4f
 TILE = 16
 N_BINS = 256
 OPAQUE = 1e-3
-REDUCE_CHUNKS = 64
 # skip tiles where meshes hide a segment, and shade only vertices of binned segments; tests
 # switch it off to check that this changes no pixel
 CULL_HIDDEN = True
@@ -62,14 +61,14 @@ def depth_bin(a: vec4f, b: vec4f, zrange: ti.types.vector(2, ti.f32)) -> ti.i32:
 
 @ti.kernel
 def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                screen: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32,
+                screen: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32, n_chunks: ti.i32,
                 out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out = (min, max) segment mid-depth [m] of the segments in front of `near`. Chunked:
-    each thread reduces a contiguous run in registers, then one atomic pair per chunk."""
+    """out = (min, max) segment mid-depth [m] of the segments in front of `near`. Each of
+    n_chunks threads reduces a contiguous run in registers, then one atomic pair per chunk."""
     out[0] = f32(3.0e38)
     out[1] = f32(-3.0e38)
-    chunk = (n + REDUCE_CHUNKS - 1) // REDUCE_CHUNKS
-    for c in range(REDUCE_CHUNKS):
+    chunk = (n + n_chunks - 1) // n_chunks
+    for c in range(n_chunks):
         lo, hi = f32(3.0e38), f32(-3.0e38)
         for e in range(c * chunk, ti.min(n, (c + 1) * chunk)):
             a, b = screen[seg[e]], screen[seg[e] + 1]
@@ -316,11 +315,12 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     hd["mark"] the vertices of the segments binned (the frame shades only those). Returns the
     bins for `composite_binned`: {"offsets", "items", "fragments": segment-tile entries,
     "tiles"}."""
-    from .runtime import buffer
+    from .runtime import buffer, chunks
     height, width = mesh_key.shape
     n_tiles = -(-width // TILE) * -(-height // TILE)
     zr = buffer("tile_zrange", f32, (2,))
-    depth_range(hd["n_segments"], hd["seg"], hd["screen"], near, zr)
+    depth_range(hd["n_segments"], hd["seg"], hd["screen"], near,
+                chunks(hd["n_segments"], 64, 1024), zr)
     lo, hi = (float(v) for v in zr.to_numpy())
     zrange = (lo, N_BINS / max(hi - lo, 1e-6)) if hi >= lo else (0.0, 1.0)
     far = buffer("tile_far", f32, (n_tiles,))
