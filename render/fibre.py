@@ -445,9 +445,12 @@ def fibre_view(t: vec3f, v: vec3f, us: vec3f, shifts: ti.template(), atab: ti.te
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
     cos_o = ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0)))
     ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
-    tilt = vec6f(sin_o * shifts[1] - cos_o * shifts[0], ti.abs(cos_o * shifts[1] + sin_o * shifts[0]),
-                 sin_o * shifts[3] + cos_o * shifts[2], ti.abs(cos_o * shifts[3] - sin_o * shifts[2]),
-                 sin_o * shifts[5] + cos_o * shifts[4], ti.abs(cos_o * shifts[5] - sin_o * shifts[4]))
+    tilt = vec6f(sin_o * shifts[1] - cos_o * shifts[0],
+                 ti.abs(cos_o * shifts[1] + sin_o * shifts[0]),
+                 sin_o * shifts[3] + cos_o * shifts[2],
+                 ti.abs(cos_o * shifts[3] - sin_o * shifts[2]),
+                 sin_o * shifts[5] + cos_o * shifts[4],
+                 ti.abs(cos_o * shifts[5] - sin_o * shifts[4]))
     albedo, a3 = vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
         a3[c] = a_lookup(atab, 1, ut, us[c])

@@ -201,7 +201,8 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
         to_light = np.array([light.to_light for light in passes], np.float32)
         irradiance = np.array([light.irradiance_rgb for light in passes], np.float32)
         shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             chunks(hd["n_vertices"], 4096, 32), len(passes), upload("hair_to_light", to_light, vec3f, 3),
+                             chunks(hd["n_vertices"], 4096, 32), len(passes),
+                             upload("hair_to_light", to_light, vec3f, 3),
                              upload("hair_irradiance", irradiance, vec3f, 3), terms,
                              hd["opacity"], eye, ambient, int(settings.multiple_scattering),
                              np.float32(settings.shadows.density), material.shifts(), ntab,

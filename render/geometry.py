@@ -119,8 +119,11 @@ class Hair:
         # (one per hair or strand, usually), before broadcasting to the vertices
         beta_n = HairMaterial().beta_n
         invert = self.material is None
-        colour_terms = lambda c: (np.concatenate([lin := _linear_colours(c), sigma_from_colour(lin, beta_n)], axis=-1)
-                                  if invert else _linear_colours(c))
+
+        def colour_terms(c):
+            lin = _linear_colours(c)
+            return np.concatenate([lin, sigma_from_colour(lin, beta_n)], axis=-1) if invert else lin
+
         terms = _per_vertex("colours", self.colours, counts, (3,), convert=colour_terms)
         linear, sigma = terms[:, :3], (terms[:, 3:] if invert else None)
         widths = _per_vertex("widths", self.widths, counts, ())
