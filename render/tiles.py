@@ -32,6 +32,8 @@ OPAQUE = 1e-3
 # skip tiles where meshes hide a segment, and shade only vertices of binned segments; tests
 # switch it off to check that this changes no pixel
 CULL_HIDDEN = True
+# entries per segment placed by the rank the counting pass kept (the rest through an atomic)
+RANKED = 2
 _GAPS = (1750, 701, 301, 132, 57, 23, 10, 4, 1)
 
 
@@ -104,14 +106,20 @@ def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  width_px: ti.types.ndarray(dtype=f32, ndim=1), near: f32,
                  zrange: ti.types.vector(2, ti.f32), width: ti.i32, height: ti.i32,
                  far: ti.types.ndarray(dtype=f32, ndim=1),
-                 scatter: ti.i32, cursor: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 scatter: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 extra: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 rank: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                 offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  items: ti.types.ndarray(dtype=ti.i64, ndim=1)):
-    """Pass 1 (scatter = 0): count segments per (tile, depth bin) into cursor, and mark (= 1)
-    the vertices of every segment binned somewhere (the only ones the frame shades). Pass 2
-    (scatter = 1, cursor = exclusive offsets): write each entry's sort key (`sort_key`) into
-    items. A tile whose farthest mesh depth (`far`) lies in front of the segment's nearest
-    point is skipped: every fragment there would fail the depth test. One thread per
+    """Pass 1 (scatter = 0): count segments per (tile, depth bin) cell, and mark (= 1) the
+    vertices of every segment binned somewhere (the only ones the frame shades). A segment's
+    first RANKED entries are counted into `count`, keeping the count before it (its rank in
+    the cell) in rank[e]; any further entries (long or wide segments) into `extra`. Pass 2
+    (scatter = 1, after `exclusive_scan`): write each entry's sort key (`sort_key`) into
+    items, at offsets[cell] + its rank (no atomic), further entries through the atomic
+    cursor `extra`. A tile whose farthest mesh depth (`far`) lies in front of the segment's
+    nearest point is skipped: every fragment there would fail the depth test. One thread per
     segment."""
     tiles_x = (width + TILE - 1) // TILE
     for e in range(n):
@@ -123,32 +131,44 @@ def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                 bin_ = depth_bin(a, b, zrange)
                 # fragment depths interpolate the ends' (float32 rounding: a relative margin)
                 nearest = ti.min(a[2], b[2]) * f32(1.0 - 1e-5)
-                binned = 0
+                entry = 0
                 for ty in range(y0 // TILE, y1 // TILE + 1):
                     for tx in range(x0 // TILE, x1 // TILE + 1):
                         tile = ty * tiles_x + tx
                         if nearest < far[tile]:
-                            slot = ti.atomic_add(cursor[tile * N_BINS + bin_], 1)
-                            binned = 1
-                            if scatter:
+                            cell = tile * N_BINS + bin_
+                            if not scatter:
+                                if entry < RANKED:
+                                    rank[e, entry] = ti.atomic_add(count[cell], 1)
+                                else:
+                                    ti.atomic_add(extra[cell], 1)
+                            else:
+                                slot = 0
+                                if entry < RANKED:
+                                    slot = offsets[cell] + rank[e, entry]
+                                else:
+                                    slot = ti.atomic_add(extra[cell], 1)
                                 items[slot] = sort_key(i, a, b)
-                if binned and not scatter:
+                            entry += 1
+                if entry > 0 and not scatter:
                     mark[i] = 1
                     mark[i + 1] = 1
 
 
 @ti.kernel
 def exclusive_scan(n: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                   extra: ti.types.ndarray(dtype=ti.i32, ndim=1),
                    offsets: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
-    """offsets[k] = sum of count[:k] for k <= n; count becomes a copy of offsets[:n] (the
-    scatter cursor). Returns the total. Serial (n = tiles x bins, a few hundred thousand)."""
+    """offsets[k] = the cells before k's entries (count + extra), for k <= n; extra[k]
+    becomes where cell k's further entries start (the scatter's cursor). Returns the total.
+    Serial (n = tiles x bins, a few hundred thousand)."""
     total = 0
     ti.loop_config(serialize=True)
     for k in range(n):
-        c = count[k]
+        c, x = count[k], extra[k]
         offsets[k] = total
-        count[k] = total
-        total += c
+        extra[k] = total + c
+        total += c + x
     offsets[n] = total
     return total
 
@@ -328,17 +348,21 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
         tile_far_depth(mesh_key, far)
     else:
         far.fill(float("inf"))
-    cursor = buffer("tile_cursor", ti.i32, (n_tiles * N_BINS,))
+    count = buffer("tile_count", ti.i32, (n_tiles * N_BINS,))
+    extra = buffer("tile_extra", ti.i32, (n_tiles * N_BINS,))
     offsets = buffer("tile_offsets", ti.i32, (n_tiles * N_BINS + 1,))
-    cursor.fill(0)
+    rank = buffer("tile_rank", ti.i32, (max(hd["n_segments"], 1), RANKED))
+    count.fill(0)
+    extra.fill(0)
     hd["mark"].fill(0)
     args = (hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], near, zrange, width,
             height, far)
-    bin_segments(*args, 0, cursor, hd["mark"], buffer("tile_items_dummy", ti.i64, (1,)))
-    total = exclusive_scan(n_tiles * N_BINS, cursor, offsets)
+    bin_segments(*args, 0, count, extra, rank, offsets, hd["mark"],
+                 buffer("tile_items_dummy", ti.i64, (1,)))
+    total = exclusive_scan(n_tiles * N_BINS, count, extra, offsets)
     capacity = 1 << max(int(total - 1).bit_length(), 10)   # powers of two: few reallocations
     items = buffer("tile_items", ti.i64, (capacity,))
-    bin_segments(*args, 1, cursor, hd["mark"], items)
+    bin_segments(*args, 1, count, extra, rank, offsets, hd["mark"], items)
     return {"offsets": offsets, "items": items, "fragments": int(total), "tiles": n_tiles}
 
 
