@@ -32,6 +32,8 @@ import taichi as ti
 from .camera import f32, unit, vec3f, vec4f
 from .runtime import buffer, ensure_init, upload
 
+vec6f = ti.types.vector(6, ti.f32)
+
 # absorption of the two melanins per unit concentration and fibre radius (d'Eon et al. 2011)
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
@@ -304,6 +306,19 @@ _LOG_2PI = math.log(2.0 * math.pi)
 _I0_COEFFS = [1.0 / (4.0 ** i * math.factorial(i) ** 2) for i in range(16)]  # I0 = sum c_i x^2i
 
 @ti.func
+def fexp(x: f32) -> f32:
+    """e^x in float32, inline: within ~2 ulp of libm's expf for x in [-87.3, 88.3] (x is
+    clamped to that range: e^-87.3 ~ 1e-38 stands for anything smaller). Shading evaluates
+    ~30 exponentials per vertex and light, and each libm call spills every vector register."""
+    xc = ti.math.clamp(x, f32(-87.3), f32(88.3))
+    k = ti.floor(xc * f32(1.4426950408889634) + f32(0.5))
+    r = xc - k * f32(0.693145751953125) - k * f32(1.428606765330187e-06)   # |r| <= ln2 / 2
+    p = f32(1.0) + r * (f32(1.0) + r * (f32(0.5) + r * (f32(1.0 / 6.0) + r * (
+        f32(1.0 / 24.0) + r * (f32(1.0 / 120.0) + r * f32(1.0 / 720.0))))))
+    return p * ti.bit_cast((ti.cast(k, ti.i32) + 127) << 23, f32)
+
+
+@ti.func
 def log_i0(x: f32) -> f32:
     """log of the modified Bessel function I0(x), x >= 0: a series below 12, asymptotic above."""
     r = f32(0.0)
@@ -321,10 +336,42 @@ def log_i0(x: f32) -> f32:
 @ti.func
 def m_lobe(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, v: f32) -> f32:
     """d'Eon's longitudinal lobe in float32, stable for small variances v."""
-    a = cos_i * cos_o / v
-    b = sin_i * sin_o / v
+    return m_lobe_c(sin_i, cos_i, sin_o, cos_o, f32(1.0) / v, variance_constant(v))
+
+
+@ti.func
+def variance_constant(v: f32) -> f32:
+    """1 / v + log(v (1 - exp(-2 / v))): the part of log M that depends on v alone."""
     inv_v = f32(1.0) / v
-    return ti.exp(log_i0(a) - b - inv_v - ti.log(v) - ti.log(f32(1.0) - ti.exp(f32(-2.0) * inv_v)))
+    return inv_v + ti.log(v * (f32(1.0) - ti.exp(f32(-2.0) * inv_v)))
+
+
+@ti.func
+def m_lobe_c(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, inv_v: f32, c_v: f32) -> f32:
+    """`m_lobe` with 1 / v and c_v = `variance_constant(v)` given (they depend on the fibre
+    alone): M = I0(a) exp(-b - c_v), a = cos_i cos_o / v, b = sin_i sin_o / v; below a = 12 the
+    I0 series multiplies the exponential (no logarithm), above it the asymptote's logarithm
+    joins the exponent."""
+    a = cos_i * cos_o * inv_v
+    b = sin_i * sin_o * inv_v
+    r = f32(0.0)
+    if a > 12.0:
+        r = fexp(a + f32(0.5) * (f32(-_LOG_2PI) - ti.log(a) + f32(1.0) / (f32(8.0) * a))
+                   - b - c_v)
+    else:
+        val, x2i = f32(0.0), f32(1.0)
+        for i in ti.static(range(16)):
+            val += f32(_I0_COEFFS[i]) * x2i
+            x2i *= a * a
+        r = val * fexp(-b - c_v)
+    return r
+
+
+@ti.func
+def lobe_variance(beta_m: f32) -> f32:
+    """v_0 of the R lobe for longitudinal roughness beta_m (floored at 1e-4)."""
+    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
+    return ti.max(v0 * v0, f32(1e-4))
 
 
 @ti.func
@@ -341,12 +388,14 @@ def n_lookup(ntab: ti.template(), p: ti.i32, ut: f32, up: f32, us: f32) -> f32:
     ip = ti.min(ti.cast(up, ti.i32), N_PHI - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fp, fs = ut - ti.cast(it, f32), up - ti.cast(ip, f32), us - ti.cast(js, f32)
+    # the table is flat (row-major p, theta, phi, sigma): constant strides, one base index
+    base = ((p * N_THETA + it) * N_PHI + ip) * N_SIGMA + js
     r = f32(0.0)
     for a, b, c in ti.static(ti.ndrange(2, 2, 2)):
         w = ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fp * b + (f32(1.0) - fp) * (1 - b))
              * (fs * c + (f32(1.0) - fs) * (1 - c)))
-        r += w * ntab[p, it + a, ip + b, js + c]
-    return ti.exp(r)
+        r += w * ntab[base + (a * N_PHI + b) * N_SIGMA + c]
+    return fexp(r)
 
 
 @ti.func
@@ -355,50 +404,84 @@ def a_lookup(atab: ti.template(), k: ti.i32, ut: f32, us: f32) -> f32:
     it = ti.min(ti.cast(ut, ti.i32), N_THETA - 2)
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     ft, fs = ut - ti.cast(it, f32), us - ti.cast(js, f32)
+    base = (k * N_THETA + it) * N_SIGMA + js   # flat, row-major (k, theta, sigma)
     r = f32(0.0)
     for a, c in ti.static(ti.ndrange(2, 2)):
         r += ((ft * a + (f32(1.0) - ft) * (1 - a)) * (fs * c + (f32(1.0) - fs) * (1 - c))
-              * atab[k, it + a, js + c])
-    return ti.exp(r)
+              * atab[base + a * N_SIGMA + c])
+    return fexp(r)
 
 
 @ti.func
 def fibre_terms(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, shifts: ti.template(),
                 ntab: ti.template(), atab: ti.template()):
     """(S(l, v) [1/sr], albedo under uniform light) of a fibre with unit tangent t, both vec3f."""
-    sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
+    v0 = lobe_variance(beta_m)
+    us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
+    return fibre_terms_c(t, l, v, us, v0, fibre_constants(v0), shifts, ntab, atab)
+
+
+@ti.func
+def fibre_constants(v0: f32) -> vec3f:
+    """`variance_constant` of the lobes' variances v0 (R), v0 / 4 (TT), 4 v0 (TRT, TRRT+)."""
+    return vec3f(variance_constant(v0), variance_constant(f32(0.25) * v0),
+                 variance_constant(f32(4.0) * v0))
+
+
+@ti.func
+def fibre_terms_c(t: vec3f, l: vec3f, v: vec3f, us: vec3f, v0: f32, cv: vec3f,
+                  shifts: ti.template(), ntab: ti.template(), atab: ti.template()):
+    """`fibre_terms` with the fibre's constants given: us the absorption's table coordinates
+    per channel (`sigma_coord`), v0 its `lobe_variance`, cv its `fibre_constants`."""
+    vo, tilt, albedo, a3 = fibre_view(t, v, us, shifts, atab)
+    return fibre_light(t, l, v, vo, tilt, a3, us, v0, cv, ntab), albedo
+
+
+@ti.func
+def fibre_view(t: vec3f, v: vec3f, us: vec3f, shifts: ti.template(), atab: ti.template()):
+    """What of `fibre_terms` depends on the view alone (shared by all lights): vo = (sin
+    theta_o, cos theta_o, theta table coordinate, theta_o), the tilted view angles of R, TT
+    and TRT (sin, cos each), the albedo and the TRRT+ attenuation A_3 per channel."""
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
     cos_o = ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0)))
+    ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
+    tilt = vec6f(sin_o * shifts[1] - cos_o * shifts[0],
+                 ti.abs(cos_o * shifts[1] + sin_o * shifts[0]),
+                 sin_o * shifts[3] + cos_o * shifts[2],
+                 ti.abs(cos_o * shifts[3] - sin_o * shifts[2]),
+                 sin_o * shifts[5] + cos_o * shifts[4],
+                 ti.abs(cos_o * shifts[5] - sin_o * shifts[4]))
+    albedo, a3 = vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0)
+    for c in ti.static(range(3)):
+        a3[c] = a_lookup(atab, 1, ut, us[c])
+        albedo[c] = a_lookup(atab, 0, ut, us[c])
+    return vec4f(sin_o, cos_o, ut, ti.asin(sin_o)), tilt, albedo, a3
+
+
+@ti.func
+def fibre_light(t: vec3f, l: vec3f, v: vec3f, vo: vec4f, tilt: vec6f, a3: vec3f,
+                us: vec3f, v0: f32, cv: vec3f, ntab: ti.template()) -> vec3f:
+    """S(l, v) [1/sr] given the view's part (`fibre_view`) and the fibre's constants."""
+    sin_o, cos_o, ut = vo[0], vo[1], vo[2]
+    sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
+    cos_i = ti.sqrt(ti.max(f32(1.0) - sin_i * sin_i, f32(0.0)))
     lp, vp = l - sin_i * t, v - sin_o * t
     den = ti.sqrt(lp.dot(lp) * vp.dot(vp))
     cphi = f32(1.0)
     if den > 1e-12:
         cphi = ti.math.clamp(lp.dot(vp) / den, f32(-1.0), f32(1.0))
-    ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
     up = ti.acos(cphi) * f32((N_PHI - 1) / math.pi)
-    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
-    v0 = ti.max(v0 * v0, f32(1e-4))
-    # the tilted view angles of R, TT and TRT
-    s_r = sin_o * shifts[1] - cos_o * shifts[0]
-    c_r = ti.abs(cos_o * shifts[1] + sin_o * shifts[0])
-    s_tt = sin_o * shifts[3] + cos_o * shifts[2]
-    c_tt = ti.abs(cos_o * shifts[3] - sin_o * shifts[2])
-    s_trt = sin_o * shifts[5] + cos_o * shifts[4]
-    c_trt = ti.abs(cos_o * shifts[5] - sin_o * shifts[4])
-    m_r = m_lobe(sin_i, cos_i, s_r, c_r, v0)
-    m_tt = m_lobe(sin_i, cos_i, s_tt, c_tt, f32(0.25) * v0)
-    m_trt = m_lobe(sin_i, cos_i, s_trt, c_trt, f32(4.0) * v0)
-    m_rest = m_lobe(sin_i, cos_i, sin_o, cos_o, f32(4.0) * v0) * f32(0.5 / math.pi)
+    inv_v0 = f32(1.0) / v0
+    m_r = m_lobe_c(sin_i, cos_i, tilt[0], tilt[1], inv_v0, cv[0])
+    m_tt = m_lobe_c(sin_i, cos_i, tilt[2], tilt[3], f32(4.0) * inv_v0, cv[1])
+    m_trt = m_lobe_c(sin_i, cos_i, tilt[4], tilt[5], f32(0.25) * inv_v0, cv[2])
+    m_rest = m_lobe_c(sin_i, cos_i, sin_o, cos_o, f32(0.25) * inv_v0, cv[2]) * f32(0.5 / math.pi)
     r = m_r * n_lookup(ntab, 0, ut, up, f32(0.0))
     s = vec3f(r, r, r)
-    albedo = vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
-        us = sigma_coord(sigma[c])
-        s[c] += (m_tt * n_lookup(ntab, 1, ut, up, us) + m_trt * n_lookup(ntab, 2, ut, up, us)
-                 + m_rest * a_lookup(atab, 1, ut, us))
-        albedo[c] = a_lookup(atab, 0, ut, us)
-    return s, albedo
+        s[c] += (m_tt * n_lookup(ntab, 1, ut, up, us[c]) + m_trt * n_lookup(ntab, 2, ut, up, us[c])
+                 + m_rest * a3[c])
+    return s
 
 
 @ti.kernel
@@ -406,8 +489,8 @@ def _fibre_kernel(n: ti.i32, t: ti.types.ndarray(dtype=vec3f, ndim=1),
                   l: ti.types.ndarray(dtype=vec3f, ndim=1),
                   v: ti.types.ndarray(dtype=vec3f, ndim=1), sigma: vec3f, beta_m: f32,
                   shifts: ti.types.vector(8, ti.f32),
-                  ntab: ti.types.ndarray(dtype=f32, ndim=4),
-                  atab: ti.types.ndarray(dtype=f32, ndim=3),
+                  ntab: ti.types.ndarray(dtype=f32, ndim=1),
+                  atab: ti.types.ndarray(dtype=f32, ndim=1),
                   out: ti.types.ndarray(dtype=vec3f, ndim=1),
                   albedo: ti.types.ndarray(dtype=vec3f, ndim=1)):
     for i in range(n):
@@ -420,8 +503,8 @@ _device_tables: dict = {}
 
 
 def upload_tables(material: HairMaterial) -> tuple:
-    """Device copies of the logarithms of the material's (N, A) tables and of its dual
-    scattering table, kept across frames (a few materials)."""
+    """Device copies (flat, row-major) of the logarithms of the material's (N, A) tables and
+    of its dual scattering table, kept across frames (a few materials)."""
     key = (round(float(material.beta_n), 6), round(float(material.ior), 6))
     if key not in _device_tables:
         if len(_device_tables) >= 8:
@@ -429,9 +512,10 @@ def upload_tables(material: HairMaterial) -> tuple:
         n_tab, a_tab = (np.log(np.maximum(t, 1e-30)).astype(np.float32) for t in fibre_tables(*key))
         d_tab = dual_table(*key)
         devices = []
-        for t in (n_tab, a_tab, d_tab):
-            dev = ti.ndarray(f32, t.shape)
-            dev.from_numpy(t)
+        for t in (n_tab, a_tab, d_tab):   # flattened, row-major: the lookups index them flat
+            flat = np.ascontiguousarray(t, dtype=np.float32).ravel()
+            dev = ti.ndarray(f32, flat.shape)
+            dev.from_numpy(flat)
             devices.append(dev)
         _device_tables[key] = tuple(devices)
     return _device_tables[key]
@@ -463,7 +547,7 @@ def fibre_scattering(material: HairMaterial, tangents, to_light, to_eye) -> dict
 def d_lookup(dtab: ti.template(), k: ti.i32, us: f32) -> f32:
     js = ti.min(ti.cast(us, ti.i32), N_SIGMA - 2)
     fs = us - ti.cast(js, f32)
-    return dtab[k, js] * (f32(1.0) - fs) + dtab[k, js + 1] * fs
+    return dtab[k * N_SIGMA + js] * (f32(1.0) - fs) + dtab[k * N_SIGMA + js + 1] * fs
 
 
 @ti.func
@@ -471,7 +555,7 @@ def gauss_lobe(theta_i: f32, theta_o: f32, var: f32) -> f32:
     """Gaussian stand-in for a broad d'Eon lobe of variance var: peak at theta_i = -theta_o,
     unit integral over theta_i (cheaper than `m_lobe`; used for dual scattering's lobes)."""
     d = theta_i + theta_o
-    return ti.exp(-d * d / (f32(2.0) * var)) * ti.rsqrt(f32(2.0 * math.pi) * var)
+    return fexp(-d * d / (f32(2.0) * var)) * ti.rsqrt(f32(2.0 * math.pi) * var)
 
 
 @ti.func
@@ -486,14 +570,52 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     over the backward half in azimuth; S_G the light arriving spread out, a broadened lobe
     carrying the fibre's albedo isotropically in azimuth. Each term integrates over incident
     directions to its energy (A_b, the albedo)."""
+    v0 = lobe_variance(beta_m)
+    us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
+    bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, alpha, dtab)
+    theta_o = ti.asin(ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0)))
+    return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af,
+                             theta_o)
+
+
+@ti.func
+def dual_constants(us: vec3f, v0: f32, alpha: f32, dtab: ti.template()):
+    """The fibre's dual-scattering constants per channel, from its absorption's table
+    coordinates us, lobe variance v0 and cuticle tilt alpha: forward variance beta_f^2,
+    backscattered energy A_b, its shift Delta_b and variance sigma_b^2, and log a_f."""
+    bf2_, a_back_, shift_, var_b_, log_af_ = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                              vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                              vec3f(0.0, 0.0, 0.0))
+    for c in ti.static(range(3)):
+        af, ab = d_lookup(dtab, 0, us[c]), d_lookup(dtab, 1, us[c])
+        bf2, bb2 = d_lookup(dtab, 2, us[c]) * v0, d_lookup(dtab, 3, us[c]) * v0
+        alpha_f, alpha_b = d_lookup(dtab, 4, us[c]) * alpha, d_lookup(dtab, 5, us[c]) * alpha
+        af2, ab2 = af * af, ab * ab
+        den = ti.max(f32(1.0) - af2, f32(1e-3))
+        a_back_[c] = ab * af2 / den + ab * ab2 * af2 / (den * den * den)
+        shift_[c] = (alpha_b * (f32(1.0) - f32(2.0) * ab2 / (den * den))
+                     + alpha_f * (f32(2.0) * den * den + f32(4.0) * af2 * ab2) / (den * den * den))
+        sd_b = ((f32(1.0) + f32(D_BACK) * af2)
+                * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
+                / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
+        bf2_[c] = bf2
+        var_b_[c] = ti.max(sd_b * sd_b, f32(1e-4))
+        log_af_[c] = ti.log(ti.max(af, f32(1e-6)))
+    return bf2_, a_back_, shift_, var_b_, log_af_
+
+
+@ti.func
+def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: vec3f,
+                      terms: vec3f, bf2: vec3f, a_back: vec3f, shift: vec3f, var_b: vec3f,
+                      log_af: vec3f, theta_o: f32) -> vec3f:
+    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants`, and the
+    view angle theta_o, given."""
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    theta_i, theta_o = ti.asin(sin_i), ti.asin(sin_o)
-    v0 = beta_m * (f32(0.726) + f32(0.812) * beta_m) + f32(3.7) * ti.pow(beta_m, 20)
-    v0 = ti.max(v0 * v0, f32(1e-4))
-    direct = ti.exp(-n) * vis
-    back_w = f32(1.0) - ti.exp(-terms[2])
+    theta_i = ti.asin(sin_i)
+    direct = fexp(-n) * vis
+    back_w = f32(1.0) - fexp(-terms[2])
     lp, vp = l - sin_i * t, v - sin_o * t
     den_phi = ti.sqrt(lp.dot(lp) * vp.dot(vp))
     cphi = f32(1.0)
@@ -502,28 +624,15 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     n_back = f32(0.5) * ti.max(cphi, f32(0.0))   # azimuth of backscatter: cos(phi) / 2, back half
     out = vec3f(0.0, 0.0, 0.0)
     for c in ti.static(range(3)):
-        us = sigma_coord(sigma[c])
-        af, ab = d_lookup(dtab, 0, us), d_lookup(dtab, 1, us)
-        bf2, bb2 = d_lookup(dtab, 2, us) * v0, d_lookup(dtab, 3, us) * v0
-        alpha_f, alpha_b = d_lookup(dtab, 4, us) * alpha, d_lookup(dtab, 5, us) * alpha
-        af2, ab2 = af * af, ab * ab
-        den = ti.max(f32(1.0) - af2, f32(1e-3))
-        a_back = ab * af2 / den + ab * ab2 * af2 / (den * den * den)
-        shift = (alpha_b * (f32(1.0) - f32(2.0) * ab2 / (den * den))
-                 + alpha_f * (f32(2.0) * den * den + f32(4.0) * af2 * ab2) / (den * den * den))
-        sd_b = ((f32(1.0) + f32(D_BACK) * af2)
-                * (ab * ti.sqrt(f32(2.0) * bf2 + bb2) + ab * ab2 * ti.sqrt(f32(2.0) * bf2 + f32(3.0) * bb2))
-                / ti.max(ab + ab * ab2 * (f32(2.0) * ti.sqrt(bf2) + f32(3.0) * ti.sqrt(bb2)), f32(1e-6)))
-        var_f = n * bf2
-        var_b = ti.max(sd_b * sd_b, f32(1e-4))
+        var_f = n * bf2[c]
         out[c] = direct * s[c]
         if direct * back_w > 1e-4:
-            out[c] += (direct * f32(D_BACK) * back_w * a_back * n_back
-                       * gauss_lobe(theta_i, theta_o + shift, var_b))
-        t_f = f32(D_FORWARD) * ti.exp(n * ti.log(ti.max(af, f32(1e-6)))) * vis
+            out[c] += (direct * f32(D_BACK) * back_w * a_back[c] * n_back
+                       * gauss_lobe(theta_i, theta_o + shift[c], var_b[c]))
+        t_f = f32(D_FORWARD) * fexp(n * log_af[c]) * vis
         if t_f - direct > 1e-4:
             s_g = gauss_lobe(theta_i, theta_o, f32(4.0) * v0 + var_f) * albedo[c] * f32(0.5 / math.pi)
-            f_back_g = a_back * n_back * gauss_lobe(theta_i, theta_o + shift, var_b + var_f)
+            f_back_g = a_back[c] * n_back * gauss_lobe(theta_i, theta_o + shift[c], var_b[c] + var_f)
             out[c] += (t_f - direct) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g)
     return out
 
@@ -533,31 +642,62 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
                          sigma: ti.types.ndarray(dtype=vec3f, ndim=1),
                          beta_m: ti.types.ndarray(dtype=f32, ndim=1),
-                         terms: ti.types.ndarray(dtype=vec3f, ndim=1), opacity: f32,
-                         eye: vec3f, to_light: vec3f, irradiance: vec3f, ambient: vec3f,
-                         first: ti.i32, dual: ti.i32, density: f32,
+                         n_chunks: ti.i32,
+                         n_lights: ti.i32, to_light: ti.types.ndarray(dtype=vec3f, ndim=1),
+                         irradiance: ti.types.ndarray(dtype=vec3f, ndim=1),
+                         terms: ti.types.ndarray(dtype=vec3f, ndim=2), opacity: f32,
+                         eye: vec3f, ambient: vec3f, dual: ti.i32, density: f32,
                          shifts: ti.types.vector(8, ti.f32),
-                         ntab: ti.types.ndarray(dtype=f32, ndim=4),
-                         atab: ti.types.ndarray(dtype=f32, ndim=3),
-                         dtab: ti.types.ndarray(dtype=f32, ndim=2),
+                         ntab: ti.types.ndarray(dtype=f32, ndim=1),
+                         atab: ti.types.ndarray(dtype=f32, ndim=1),
+                         dtab: ti.types.ndarray(dtype=f32, ndim=1),
+                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
-    """rgba[i] (+)= (linear radiance of vertex i under one directional light of `irradiance`
-    [W/m^2], plus, when `first`, the uniform `ambient` radiance; opacity). terms[i]: the
-    vertex's (hair opacity towards the light, mesh visibility, hair opacity behind it) from
-    `shadows.shadow_terms`. dual: Zinke's dual scattering (`dual_scattering`); otherwise single
-    scattering shadowed by exp(-density x opacity) x visibility. Tangent from the strand
-    neighbours (root to tip). Shapes (V,). One thread per vertex."""
-    for i in range(n):
-        t = unit(x[nbr[i][1]] - x[nbr[i][0]])
-        v = unit(eye - x[i])
-        s, albedo = fibre_terms(t, to_light, v, sigma[i], beta_m[i], shifts, ntab, atab)
-        tm = terms[i]
-        f = s * (ti.exp(-density * tm[0]) * tm[1])
-        if dual:
-            f = dual_scattering(t, to_light, v, sigma[i], beta_m[i], s, albedo, tm, shifts[6], dtab)
-        c = irradiance * f
-        if first:
-            c += ambient * albedo
+    """rgba[i] = (linear radiance of vertex i under n_lights directional lights, light k from
+    direction to_light[k] with `irradiance[k]` [W/m^2], plus the uniform `ambient` radiance;
+    opacity). terms[k, i]: the vertex's (hair opacity towards light k, mesh visibility, hair
+    opacity behind it) from `shadows.shadow_terms`. dual: Zinke's dual scattering
+    (`dual_scattering`); otherwise single scattering shadowed by exp(-density x opacity) x
+    visibility. Tangent from the strand neighbours (root to tip). The view's part of the
+    shading is computed once for all lights; the lights add in order after the first (with
+    the ambient), as separate passes would. masked: only vertices with mark[i] != 0 (the
+    others' rgba is left as it was). Shapes (V,). n_chunks threads, each over a run of
+    vertices."""
+    # consecutive vertices mostly belong to one strand and share its absorption and
+    # roughness: each thread walks a run of vertices and recomputes the fibre's constants
+    # (table coordinates, lobe constants, dual scattering's) only when they change; the same
+    # inputs give the same bits, so the result does not depend on the runs
+    chunk = (n + n_chunks - 1) // n_chunks
+    for ch in range(n_chunks):
+        sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
+        us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
+        bf2, a_back, shift, var_b, log_af = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                             vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
+                                             vec3f(0.0, 0.0, 0.0))
+        for i in range(ch * chunk, ti.min(n, (ch + 1) * chunk)):
+            if masked and mark[i] == 0:
+                continue
+            sg, bm = sigma[i], beta_m[i]
+            if sg[0] != sg_k[0] or sg[1] != sg_k[1] or sg[2] != sg_k[2] or bm != bm_k:
+                sg_k, bm_k = sg, bm
+                us = vec3f(sigma_coord(sg[0]), sigma_coord(sg[1]), sigma_coord(sg[2]))
+                v0 = lobe_variance(bm)
+                cv = fibre_constants(v0)
+                bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, shifts[6], dtab)
+            t = unit(x[nbr[i][1]] - x[nbr[i][0]])
+            v = unit(eye - x[i])
+            vo, tilt, albedo, a3 = fibre_view(t, v, us, shifts, atab)
+            c = vec3f(0.0, 0.0, 0.0)
+            for k in range(n_lights):
+                l = to_light[k]
+                s = fibre_light(t, l, v, vo, tilt, a3, us, v0, cv, ntab)
+                tm = terms[k, i]
+                f = s * (fexp(-density * tm[0]) * tm[1])
+                if dual:
+                    f = dual_scattering_c(t, l, v, v0, s, albedo, tm, bf2, a_back, shift,
+                                          var_b, log_af, vo[3])
+                if k == 0:
+                    c = irradiance[k] * f + ambient * albedo
+                else:
+                    c += irradiance[k] * f
             rgba[i] = vec4f(c[0], c[1], c[2], opacity)
-        else:
-            rgba[i] += vec4f(c[0], c[1], c[2], 0.0)

@@ -11,6 +11,7 @@ The stages, in order (each a kernel or two from camera, shadows, shading and ras
 """
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -18,11 +19,12 @@ import taichi as ti
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
 from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
-from .runtime import buffer, ensure_init, upload
+from .runtime import buffer, chunks, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
-from .tiles import composite_hair
+from . import tiles
+from .tiles import bin_hair, composite_binned
 
 vec2f = ti.types.vector(2, ti.f32)
 vec2i = ti.types.vector(2, ti.i32)
@@ -98,8 +100,8 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
                 width_px=buffer("hair_width_px", f32, (nv,)),
                 screen=buffer("hair_screen", vec4f, (nv,), 4),
                 shadow=buffer("hair_shadow", f32, (nv,)),
-                terms=buffer("hair_shadow_terms", vec3f, (nv,), 3),
                 rgba=buffer("hair_rgba", vec4f, (nv,), 4),
+                mark=buffer("hair_mark", ti.i32, (nv,)),
                 n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
 
 
@@ -153,32 +155,30 @@ def _lights(lights, lighting) -> tuple[list, np.ndarray]:
     return split_lights(lights)
 
 
-def _shade_hair(hd: dict, eye, light, ambient, first: bool, settings: RenderSettings, fibre,
-                smap):
-    """Shade the hair vertices for one directional light (adding to earlier lights)."""
-    to_light = light.to_light
+def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
+                           settings: RenderSettings, smap, masked: bool):
+    """Kajiya-Kay: shade the hair vertices for one directional light (adding to earlier
+    lights); masked: only the vertices marked in hd["mark"]."""
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
-    shadow_args = (smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                   smap.params)
-    if settings.hair_model == "fibre":
-        ntab, atab, dtab = upload_tables(fibre)
-        points_shadow_terms(hd["n_vertices"], hd["x"], *shadow_args, hd["terms"])
-        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             hd["terms"], hd["opacity"], eye, to_light, irradiance, ambient,
-                             int(first), int(settings.multiple_scattering),
-                             np.float32(settings.shadows.density), fibre.shifts(), ntab, atab,
-                             dtab, hd["rgba"])
-    else:
-        points_transmittance(hd["n_vertices"], hd["x"], *shadow_args, hd["shadow"])
-        shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
-                            hd["opacity"], eye, to_light, irradiance / np.float32(np.pi), ambient,
-                            int(first), settings.hair_shading.packed(), hd["rgba"])
+    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0, smap.opacity,
+                         smap.bounds, smap.mesh_key, smap.params, int(masked), hd["mark"],
+                         hd["shadow"])
+    shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
+                        hd["opacity"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
+                        int(first), settings.hair_shading.packed(), int(masked), hd["mark"],
+                        hd["rgba"])
 
 
-def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base):
-    """Per directional light: its shadow maps, the meshes' and the hair's shading, adding up
-    (the first pass also writes the ambient term and the background)."""
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
+                  masked: bool = False):
+    """Per directional light: its shadow maps and the meshes' shading, adding up (the first
+    pass also writes the ambient term and the background), and the hair's shadow terms; then
+    the fibre shading of the hair under all lights in one pass (Kajiya-Kay: per light).
+    masked: shade only the hair vertices marked in hd["mark"]."""
     passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
+    fibre = settings.hair_model == "fibre" and hd["n_vertices"] > 0
+    if fibre:
+        terms = buffer("hair_shadow_terms", vec3f, (len(passes), max(hd["n_vertices"], 1)), 3)
     for k, light in enumerate(passes):
         shadows = settings.shadows if light.shadows else replace(settings.shadows, enabled=False)
         smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
@@ -189,8 +189,32 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
                    md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
                    bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
                    smap.params, int(k == 0), base)
-        if hd["n_vertices"]:
-            _shade_hair(hd, eye, light, ambient, k == 0, settings, hair.fibre, smap)
+        if fibre:
+            points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
+                                smap.opacity, smap.bounds, smap.mesh_key, smap.params,
+                                int(masked), hd["mark"], k, terms)
+        elif hd["n_vertices"]:
+            _shade_hair_kajiya_kay(hd, eye, light, ambient, k == 0, settings, smap, masked)
+    if fibre:
+        material = hair.fibre
+        ntab, atab, dtab = upload_tables(material)
+        to_light = np.array([light.to_light for light in passes], np.float32)
+        irradiance = np.array([light.irradiance_rgb for light in passes], np.float32)
+        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
+                             chunks(hd["n_vertices"], 4096, 32), len(passes),
+                             upload("hair_to_light", to_light, vec3f, 3),
+                             upload("hair_irradiance", irradiance, vec3f, 3), terms,
+                             hd["opacity"], eye, ambient, int(settings.multiple_scattering),
+                             np.float32(settings.shadows.density), material.shifts(), ntab,
+                             atab, dtab, int(masked), hd["mark"], hd["rgba"])
+
+
+class _Buffers(NamedTuple):
+    """A rendered frame's device buffers at the camera's resolution."""
+
+    image: object
+    rgb: object
+    alpha: object
 
 
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
@@ -202,6 +226,12 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     lights: a list of `DirectionalLight` and `AmbientLight`; or lighting: the older
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
     [0, 1] behind everything."""
+    b = _render(camera, hair, meshes, lights, lighting, background, settings)
+    return {"image": b.image.to_numpy(), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
+
+
+def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Buffers:
+    """Render one frame into device buffers (see `render_buffers`)."""
     _check(camera, hair, meshes, settings)
     directional, ambient = _lights(lights, lighting)
     bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
@@ -227,17 +257,21 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
-    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base)
-
-    # after the light maps, which use width_px as scratch
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
+    # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
+    # of the meshes; only those are shaded
+    bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
+                  masked=bins is not None and tiles.CULL_HIDDEN)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
     alpha_s = buffer("alpha_s", f32, (height, width))
     if tiled:
-        composite_hair(hd, near, mesh_key, base, rgb_s, alpha_s)
+        if bins is None:
+            bins = bin_hair(hd, near, mesh_key)
+        composite_binned(bins, hd, mesh_key, base, rgb_s, alpha_s)
     else:
         raster_hair(hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], hd["rgba"], near,
                     mesh_key, kbuf, tail)
@@ -247,15 +281,15 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u8, (camera.height, camera.width, 3))
     finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
-    return {"image": image.to_numpy(), "rgb": out_rgb.to_numpy(), "alpha": out_alpha.to_numpy()}
+    return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha)
 
 
 def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                  lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
                  settings: RenderSettings = RenderSettings()) -> np.ndarray:
-    """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`."""
-    return render_buffers(camera, hair=hair, meshes=meshes, lights=lights, lighting=lighting,
-                          background=background, settings=settings)["image"]
+    """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
+    (this reads back the image only)."""
+    return _render(camera, hair, meshes, lights, lighting, background, settings).image.to_numpy()
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
@@ -268,5 +302,6 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     hd, md = _upload_hair(hair), _upload_meshes(list(meshes))
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
-                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, hd["shadow"])
+                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, 0, hd["mark"],
+                         hd["shadow"])
     return hd["shadow"].to_numpy()[: hd["n_vertices"]]

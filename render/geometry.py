@@ -41,24 +41,35 @@ def _strands(points) -> list[np.ndarray]:
     return strands
 
 
-def _per_vertex(name: str, value, counts: np.ndarray, tail: tuple) -> np.ndarray:
-    """Broadcast a per-hair, per-strand or per-vertex attribute to all V vertices, (V, *tail)."""
+def _per_vertex(name: str, value, counts: np.ndarray, tail: tuple, convert=None) -> np.ndarray:
+    """Broadcast a per-hair, per-strand or per-vertex attribute to all V vertices, (V, *tail).
+    convert (optional): applied to the values as given, before broadcasting (so a colour per
+    strand is converted once per strand, not once per vertex)."""
+    conv = (lambda a: a) if convert is None else convert
     n_strands, n_vertices = len(counts), int(counts.sum())
     if isinstance(value, (list, tuple)) and len(value) == n_strands and n_strands > 0 \
             and np.ndim(value[0]) == 1 + len(tail) and np.shape(value[0])[0] == counts[0]:
         parts = [np.asarray(v, dtype=np.float64) for v in value]
         if any(p.shape != (c, *tail) for p, c in zip(parts, counts)):
             raise ValueError(f"{name}: per-vertex list entries must have shape [N_i, *{tail}]")
-        return np.concatenate(parts)
+        return conv(np.concatenate(parts))
     a = np.asarray(value, dtype=np.float64)
     if a.shape == tail:
-        return np.broadcast_to(a, (n_vertices, *tail))
+        c = conv(a)
+        return np.broadcast_to(c, (n_vertices, *c.shape))
     if a.shape == (n_strands, *tail):
-        return np.repeat(a, counts, axis=0)
+        return np.repeat(conv(a), counts, axis=0)
     if a.ndim == 2 + len(tail) and a.shape[:2] == (n_strands, counts[0]) and np.all(counts == counts[0]):
-        return a.reshape(n_vertices, *tail)
+        return conv(a.reshape(n_vertices, *tail))
     raise ValueError(f"{name} must have shape {tail}, (S, *{tail}) or (S, N, *{tail}) "
                      f"with S={n_strands}, got {a.shape}")
+
+
+def _linear_colours(c: np.ndarray) -> np.ndarray:
+    """Checked sRGB colours in [0, 1] -> linear light."""
+    if c.size and not np.all((c >= 0.0) & (c <= 1.0)):
+        raise ValueError(f"colours must be sRGB in [0, 1], got range [{c.min():.3g}, {c.max():.3g}]")
+    return srgb_to_linear(c)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -79,7 +90,8 @@ class Hair:
     Derived at construction (float32 / int32, V vertices, E segments): `vertices` (V, 3),
     `vertex_colours` (V, 3) linear, `vertex_widths` (V,), `segments` (E,) index of each
     segment's first vertex, `neighbours` (V, 2) previous and next vertex on the strand (the
-    vertex itself at the ends), used for tangents.
+    vertex itself at the ends), used for tangents. They are read-only (the renderer keeps
+    device copies of a groom it renders again).
     """
 
     points: object
@@ -103,10 +115,17 @@ class Hair:
         x = np.concatenate(strands) if strands else np.zeros((0, 3))
         if not np.all(np.isfinite(x)):
             raise ValueError("points must be finite, got NaN or inf")
-        colours = _per_vertex("colours", self.colours, counts, (3,))
-        if colours.size and not np.all((colours >= 0.0) & (colours <= 1.0)):
-            raise ValueError(f"colours must be sRGB in [0, 1], got range "
-                             f"[{colours.min():.3g}, {colours.max():.3g}]")
+        # without a material the absorption is inverted from the colours: per colour as given
+        # (one per hair or strand, usually), before broadcasting to the vertices
+        beta_n = HairMaterial().beta_n
+        invert = self.material is None
+
+        def colour_terms(c):
+            lin = _linear_colours(c)
+            return np.concatenate([lin, sigma_from_colour(lin, beta_n)], axis=-1) if invert else lin
+
+        terms = _per_vertex("colours", self.colours, counts, (3,), convert=colour_terms)
+        linear, sigma = terms[:, :3], (terms[:, 3:] if invert else None)
         widths = _per_vertex("widths", self.widths, counts, ())
         if widths.size and not (np.all(np.isfinite(widths)) and widths.min() > 0.0):
             raise ValueError(f"widths must be > 0 m, got minimum {widths.min():.3g}")
@@ -121,12 +140,20 @@ class Hair:
         is_last[ends] = True
         set_ = lambda n, v: object.__setattr__(self, n, v)
         set_("vertices", x.astype(np.float32))
-        set_("vertex_colours", srgb_to_linear(colours).astype(np.float32))
+        set_("vertex_colours", linear.astype(np.float32))
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
         set_("segments", idx[~is_last].astype(np.int32))
         set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
         set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
-        self._set_optics(counts, srgb_to_linear(colours))
+        self._set_optics(counts, linear, sigma)
+        # derived once and never changed: read-only, so the renderer may keep device copies
+        for name in ("vertices", "vertex_colours", "vertex_widths", "segments", "neighbours",
+                     "strand_starts", "vertex_sigma", "vertex_beta_m"):
+            a = getattr(self, name)
+            if a.base is not None:   # a view could change through its base: own the data
+                a = a.copy()
+                set_(name, a)
+            a.flags.writeable = False
 
     def subset(self, fraction: float) -> dict:
         """Level of detail: a fixed, seeded `fraction` of the strands (the same strands for
@@ -150,20 +177,23 @@ class Hair:
                                seg=seg.astype(np.int32), nbr=remap[self.neighbours[idx]].astype(np.int32),
                                colour=self.vertex_colours[idx], sigma=self.vertex_sigma[idx],
                                beta_m=self.vertex_beta_m[idx])
+        for a in cache[fraction].values():
+            a.flags.writeable = False
         return cache[fraction]
 
-    def _set_optics(self, counts: np.ndarray, linear: np.ndarray) -> None:
+    def _set_optics(self, counts: np.ndarray, linear: np.ndarray, sigma) -> None:
+        """sigma: the absorption inverted from the colours (V, 3) when there is no material."""
         set_ = lambda n, v: object.__setattr__(self, n, v)
         m = self.material
         if m is None:
             fibre = HairMaterial()
-            sigma = sigma_from_colour(linear, fibre.beta_n)
             beta_m = np.full(len(linear), fibre.beta_m)
         elif isinstance(m, HairMaterial):
             fibre = m
             s_strand, b_strand = m.strands(len(counts))
             sigma, beta_m = np.repeat(s_strand, counts, axis=0), np.repeat(b_strand, counts)
-            set_("vertex_colours", colour_from_sigma(sigma, m.beta_n).astype(np.float32))
+            set_("vertex_colours", np.repeat(colour_from_sigma(s_strand, m.beta_n).astype(np.float32),
+                                             counts, axis=0))
         else:
             raise ValueError(f"material must be a render.HairMaterial or None, got {type(m).__name__}")
         set_("fibre", fibre)

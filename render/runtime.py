@@ -9,11 +9,14 @@ compile once per process, whereas kernels taking fields as templates recompile f
 field.
 """
 
+import weakref
+
 import numpy as np
 import taichi as ti
 
 _ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
 _buffers: dict = {}
+_sources: dict = {}   # buffer key -> weak reference to the read-only array last copied in
 
 
 def is_initialized() -> bool:
@@ -43,6 +46,17 @@ def ensure_init() -> None:
         init()
 
 
+def on_cpu() -> bool:
+    """True when Taichi runs on the CPU (x64 or arm64)."""
+    return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+
+
+def chunks(n: int, cpu: int, per_thread_gpu: int) -> int:
+    """Threads for a kernel whose threads each walk a contiguous run of n items: `cpu` on the
+    CPU (a few per core, long runs), else one per `per_thread_gpu` items (GPUs want many)."""
+    return max(1, cpu if on_cpu() else -(-int(n) // per_thread_gpu))
+
+
 def buffer(name: str, dtype, shape: tuple, n: int = 0) -> ti.Ndarray:
     """A cached `ti.ndarray` of `dtype` (a Taichi scalar or vector type) and `shape`.
 
@@ -55,14 +69,24 @@ def buffer(name: str, dtype, shape: tuple, n: int = 0) -> ti.Ndarray:
         # drop stale buffers of the same name so a resolution sweep does not pile up memory
         for old in [k for k in _buffers if k[0] == name]:
             del _buffers[old]
+            _sources.pop(old, None)
         _buffers[key] = ti.ndarray(dtype, shape)
     return _buffers[key]
 
 
 def upload(name: str, array: np.ndarray, dtype, n: int = 0) -> ti.Ndarray:
     """Copy a numpy array into the cached ndarray `name` (scalar: shape of array; vector of
-    length n: shape of array without its last axis) and return it."""
+    length n: shape of array without its last axis) and return it.
+
+    A read-only array (a `Hair`'s derived arrays are) that is the very object last copied
+    into this buffer is not copied again: rendering the same groom again (a turntable, a
+    benchmark) skips the upload. Writeable arrays are always copied."""
     shape = array.shape[:-1] if n else array.shape
     nd = buffer(name, dtype, shape, n)
+    key = (name, str(dtype), n, tuple(int(s) for s in shape))
+    last = _sources.get(key)
+    if last is not None and last() is array and not array.flags.writeable:
+        return nd
     nd.from_numpy(array)
+    _sources[key] = None if array.flags.writeable else weakref.ref(array)
     return nd

@@ -245,17 +245,21 @@ def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
                         shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
                         eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, first: ti.i32,
-                        kk: vec8f, rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+                        kk: vec8f, masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                        rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
     """rgba[i] (+)= (linear radiance of vertex i under one key light, plus the ambient when
-    `first`, opacity). Tangent from the strand neighbours. Shapes (V,). One thread per vertex."""
+    `first`, opacity). Tangent from the strand neighbours. masked: only vertices with
+    mark[i] != 0. Shapes (V,). One thread per vertex."""
     for i in range(n):
+        if masked and mark[i] == 0:
+            continue
         t = unit(x[nbr[i][1]] - x[nbr[i][0]])
         v = unit(eye - x[i])
         c = shade_hair(t, to_light, v, albedo[i], light, ambient, shadow[i], kk)
         if first:
             rgba[i] = vec4f(c[0], c[1], c[2], opacity)
         else:
-            rgba[i] += vec4f(c[0], c[1], c[2], 0.0)
+            rgba[i] = rgba[i] + vec4f(c[0], c[1], c[2], 0.0)   # one thread per vertex: no atomic
 
 
 @ti.kernel
@@ -322,4 +326,4 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
         if first:
             base[py, px] = c
         elif key != empty_key():
-            base[py, px] += c
+            base[py, px] = base[py, px] + c   # one thread per pixel: no atomic add

@@ -18,7 +18,7 @@ import taichi as ti
 
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
-from .runtime import buffer, upload
+from .runtime import buffer, chunks, upload
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -113,6 +113,17 @@ def texel_of(p: vec4f, size: ti.i32):
     return i, j
 
 
+@ti.func
+def slab_of(bounds: ti.template(), layers: ti.i32, dz: f32) -> ti.i32:
+    """The slab holding depth dz [m] behind z0: the last k < layers with bounds[k] <= dz (0
+    if none). The bounds increase, so that is how many of bounds[1:layers] are <= dz: a
+    count with a fixed trip, no data-dependent exit to mispredict."""
+    slab = 0
+    for k in range(1, layers):
+        slab += ti.select(bounds[k] <= dz, 1, 0)
+    return slab
+
+
 @ti.kernel
 def splat_hair_depth(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                      screen: ti.types.ndarray(dtype=vec4f, ndim=1),
@@ -154,9 +165,7 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             w = width[k] + (width[k + 1] - width[k]) * t
             i, j = texel_of(p, size)
             dz = p[2] - z0[j, i]
-            slab = 0
-            while slab < layers - 1 and bounds[slab + 1] <= dz:
-                slab += 1
+            slab = slab_of(bounds, layers, dz)
             amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
             ti.atomic_add(fixed[j, i, slab], ti.cast(ti.round(amount * OPACITY_STEPS), ti.i64))
 
@@ -181,9 +190,7 @@ def column_opacity(z0: ti.template(), opacity: ti.template(), bounds: ti.templat
     dz = depth - z0[j, i]
     if dz > 0.0:
         layers = opacity.shape[2]
-        slab = 0
-        while slab < layers - 1 and bounds[slab + 1] <= dz:
-            slab += 1
+        slab = slab_of(bounds, layers, dz)
         before = f32(0.0)
         if slab > 0:
             before = opacity[j, i, slab - 1]
@@ -231,10 +238,14 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                         opacity: ti.types.ndarray(dtype=f32, ndim=3),
                         bounds: ti.types.ndarray(dtype=f32, ndim=1),
                         mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
-                        out: ti.types.ndarray(dtype=vec3f, ndim=1)):
-    """out[i] = shadow_terms at x[i] [m], shapes (n,). One thread per point."""
+                        masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                        row: ti.i32, out: ti.types.ndarray(dtype=vec3f, ndim=2)):
+    """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
+    where mark[i] != 0. One thread per point."""
     for k in range(n):
-        out[k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+        if masked and mark[k] == 0:
+            continue
+        out[row, k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
 @ti.kernel
@@ -243,25 +254,34 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                          opacity: ti.types.ndarray(dtype=f32, ndim=3),
                          bounds: ti.types.ndarray(dtype=f32, ndim=1),
                          mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
+                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out[i] = transmittance at x[i] [m], shapes (n,). One thread per point."""
+    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
+    thread per point."""
     for k in range(n):
+        if masked and mark[k] == 0:
+            continue
         out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
 
 
 @ti.kernel
-def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
+def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), n_chunks: ti.i32,
                  box: ti.types.ndarray(dtype=f32, ndim=1)):
-    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Scalar atomics on fixed
-    addresses, which Taichi turns into thread-local reductions."""
+    """box = (min x, min y, min z, max x, max y, max z) of x[:n] [m]. Each of n_chunks
+    threads reduces a contiguous chunk in registers, then one atomic per chunk and bound
+    (atomics on fixed addresses per point cost 70 ns a point on the CPU)."""
     for k in ti.static(range(3)):
         box[k] = f32(3.0e38)
         box[k + 3] = f32(-3.0e38)
-    for i in range(n):
-        p = x[i]
+    chunk = (n + n_chunks - 1) // n_chunks
+    for c in range(n_chunks):
+        lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
+        for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+            lo = ti.min(lo, x[i])
+            hi = ti.max(hi, x[i])
         for k in ti.static(range(3)):
-            ti.atomic_min(box[k], p[k])
-            ti.atomic_max(box[k + 3], p[k])
+            ti.atomic_min(box[k], lo[k])
+            ti.atomic_max(box[k + 3], hi[k])
 
 
 def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
@@ -269,7 +289,7 @@ def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
     boxes = []
     for d in parts:
         box = buffer("scene_box", f32, (6,))
-        bounding_box(d["n_vertices"], d["x"], box)
+        bounding_box(d["n_vertices"], d["x"], chunks(d["n_vertices"], 64, 1024), box)
         boxes.append(box.to_numpy().astype(np.float64).reshape(2, 3))
     lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
     return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)) * 1.01, 1e-6)
@@ -278,7 +298,7 @@ def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:
 def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
                      mesh: dict | None) -> ShadowMap:
     """Render the light's maps. hair/mesh: dicts of uploaded device arrays from `render.frame`
-    (both: x, width, width_px (scratch), n_vertices; hair also: seg, n_segments,
+    (both: x, width, n_vertices; hair also: seg, n_segments,
     opacity; mesh also: faces, n_faces) or None. Disabled settings or an empty scene give a map that lets all
     light through."""
     parts = [d for d in (hair, mesh) if d is not None]
@@ -302,13 +322,13 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     bounds = upload("shadow_bounds", settings.bounds(2.0 * radius), f32)
     if mesh is not None and settings.mesh_shadows:
         ls = buffer("shadow_mesh_screen", vec4f, (max(mesh["n_vertices"], 1),), 4)
-        project_vertices(mesh["n_vertices"], mesh["x"], mesh["width"], view, proj, ls,
-                         mesh["width_px"])
+        scratch = buffer("shadow_mesh_width_px", f32, (max(mesh["n_vertices"], 1),))
+        project_vertices(mesh["n_vertices"], mesh["x"], mesh["width"], view, proj, ls, scratch)
         raster_triangles(mesh["n_faces"], ls, mesh["faces"], 0.0, mesh_key)
     if hair is not None:
         ls = buffer("shadow_hair_screen", vec4f, (hair["n_vertices"],), 4)
-        project_vertices(hair["n_vertices"], hair["x"], hair["width"], view, proj, ls,
-                         hair["width_px"])
+        scratch = buffer("shadow_hair_width_px", f32, (hair["n_vertices"],))
+        project_vertices(hair["n_vertices"], hair["x"], hair["width"], view, proj, ls, scratch)
         splat_hair_depth(hair["n_segments"], hair["seg"], ls, z0)
         splat_hair_opacity(hair["n_segments"], hair["seg"], ls, hair["width"], hair["opacity"],
                            light.texel_size, z0, bounds, fixed)

@@ -3,8 +3,11 @@
 The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into the tiles its
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
-tile walks its bins front to back, sorts each bin's segments exactly by depth (Shell sort),
-and blends each segment's fragments into the tile's pixels front to back:
+tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
+first vertex), walks them front to back (reading each segment's ends one iteration ahead:
+those reads are cache misses) and blends each segment's fragments into the tile's pixels
+front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
+be an atomic add):
 
     C += T alpha c,   T *= 1 - alpha        (T: transmittance so far, 1 at the start)
 
@@ -13,16 +16,24 @@ Fragments are ordered by their segment's mid-depth, so ordering is exact between
 and approximate only where two segments' depth ranges interleave within a pixel. Coverage is
 the same box-filtered analytic coverage as the k-buffer compositor (`raster.coverage`).
 The result per pixel: rgb = C + T * base (mesh or background), alpha = 1 - T.
+
+Binning runs before shading: a tile whose every pixel shows a mesh nearer than a segment's
+nearest point does not get it, and only the vertices of segments binned somewhere are shaded
+(`render.frame`).
 """
 
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
-from .raster import coverage, pixel_centre
 
 TILE = 16
 N_BINS = 256
 OPAQUE = 1e-3
+# skip tiles where meshes hide a segment, and shade only vertices of binned segments; tests
+# switch it off to check that this changes no pixel
+CULL_HIDDEN = True
+# entries per segment placed by the rank the counting pass kept (the rest through an atomic)
+RANKED = 2
 _GAPS = (1750, 701, 301, 132, 57, 23, 10, 4, 1)
 
 
@@ -52,17 +63,41 @@ def depth_bin(a: vec4f, b: vec4f, zrange: ti.types.vector(2, ti.f32)) -> ti.i32:
 
 @ti.kernel
 def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                screen: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32,
+                screen: ti.types.ndarray(dtype=vec4f, ndim=1), near: f32, n_chunks: ti.i32,
                 out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out = (min, max) segment mid-depth [m] of the segments in front of `near`."""
+    """out = (min, max) segment mid-depth [m] of the segments in front of `near`. Each of
+    n_chunks threads reduces a contiguous run in registers, then one atomic pair per chunk."""
     out[0] = f32(3.0e38)
     out[1] = f32(-3.0e38)
-    for e in range(n):
-        a, b = screen[seg[e]], screen[seg[e] + 1]
-        if ti.min(a[2], b[2]) > near:
-            z = f32(0.5) * (a[2] + b[2])
-            ti.atomic_min(out[0], z)
-            ti.atomic_max(out[1], z)
+    chunk = (n + n_chunks - 1) // n_chunks
+    for c in range(n_chunks):
+        lo, hi = f32(3.0e38), f32(-3.0e38)
+        for e in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+            a, b = screen[seg[e]], screen[seg[e] + 1]
+            if ti.min(a[2], b[2]) > near:
+                z = f32(0.5) * (a[2] + b[2])
+                lo = ti.min(lo, z)
+                hi = ti.max(hi, z)
+        ti.atomic_min(out[0], lo)
+        ti.atomic_max(out[1], hi)
+
+
+@ti.kernel
+def tile_far_depth(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                   far: ti.types.ndarray(dtype=f32, ndim=1)):
+    """far[tile] = the farthest mesh depth [m] over the tile's pixels (+inf where a pixel shows
+    the background): hair wholly behind it in a tile has no fragment there. One thread per
+    tile."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    tiles_x = (width + TILE - 1) // TILE
+    tiles_y = (height + TILE - 1) // TILE
+    for tile in range(tiles_x * tiles_y):
+        tx0, ty0 = (tile % tiles_x) * TILE, (tile // tiles_x) * TILE
+        d = f32(0.0)
+        for py in range(ty0, ti.min(ty0 + TILE, height)):
+            for px in range(tx0, ti.min(tx0 + TILE, width)):
+                d = ti.max(d, key_depth_of(mesh_key[py, px]))
+        far[tile] = d
 
 
 @ti.kernel
@@ -70,11 +105,22 @@ def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                  width_px: ti.types.ndarray(dtype=f32, ndim=1), near: f32,
                  zrange: ti.types.vector(2, ti.f32), width: ti.i32, height: ti.i32,
-                 scatter: ti.i32, cursor: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 items: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-    """Pass 1 (scatter = 0): count segments per (tile, depth bin) into cursor. Pass 2
-    (scatter = 1, cursor = exclusive offsets): write each segment id into items. One thread
-    per segment."""
+                 far: ti.types.ndarray(dtype=f32, ndim=1),
+                 scatter: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 extra: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 rank: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                 offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 items: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """Pass 1 (scatter = 0): count segments per (tile, depth bin) cell, and mark (= 1) the
+    vertices of every segment binned somewhere (the only ones the frame shades). A segment's
+    first RANKED entries are counted into `count`, keeping the count before it (its rank in
+    the cell) in rank[e]; any further entries (long or wide segments) into `extra`. Pass 2
+    (scatter = 1, after `exclusive_scan`): write each entry's sort key (`sort_key`) into
+    items, at offsets[cell] + its rank (no atomic), further entries through the atomic
+    cursor `extra`. A tile whose farthest mesh depth (`far`) lies in front of the segment's
+    nearest point is skipped: every fragment there would fail the depth test. One thread per
+    segment."""
     tiles_x = (width + TILE - 1) // TILE
     for e in range(n):
         i = seg[e]
@@ -83,71 +129,91 @@ def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             x0, x1, y0, y1 = segment_span(a, b, ti.max(width_px[i], width_px[i + 1]), width, height)
             if x0 <= x1 and y0 <= y1:
                 bin_ = depth_bin(a, b, zrange)
+                # fragment depths interpolate the ends' (float32 rounding: a relative margin)
+                nearest = ti.min(a[2], b[2]) * f32(1.0 - 1e-5)
+                entry = 0
                 for ty in range(y0 // TILE, y1 // TILE + 1):
                     for tx in range(x0 // TILE, x1 // TILE + 1):
-                        slot = ti.atomic_add(cursor[(ty * tiles_x + tx) * N_BINS + bin_], 1)
-                        if scatter:
-                            items[slot] = e
+                        tile = ty * tiles_x + tx
+                        if nearest < far[tile]:
+                            cell = tile * N_BINS + bin_
+                            if not scatter:
+                                if entry < RANKED:
+                                    rank[e, entry] = ti.atomic_add(count[cell], 1)
+                                else:
+                                    ti.atomic_add(extra[cell], 1)
+                            else:
+                                slot = 0
+                                if entry < RANKED:
+                                    slot = offsets[cell] + rank[e, entry]
+                                else:
+                                    slot = ti.atomic_add(extra[cell], 1)
+                                items[slot] = sort_key(i, a, b)
+                            entry += 1
+                if entry > 0 and not scatter:
+                    mark[i] = 1
+                    mark[i + 1] = 1
 
 
 @ti.kernel
 def exclusive_scan(n: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                   extra: ti.types.ndarray(dtype=ti.i32, ndim=1),
                    offsets: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
-    """offsets[k] = sum of count[:k] for k <= n; count becomes a copy of offsets[:n] (the
-    scatter cursor). Returns the total. Serial (n = tiles x bins, a few hundred thousand)."""
+    """offsets[k] = the cells before k's entries (count + extra), for k <= n; extra[k]
+    becomes where cell k's further entries start (the scatter's cursor). Returns the total.
+    Serial (n = tiles x bins, a few hundred thousand)."""
     total = 0
     ti.loop_config(serialize=True)
     for k in range(n):
-        c = count[k]
+        c, x = count[k], extra[k]
         offsets[k] = total
-        count[k] = total
-        total += c
+        extra[k] = total + c
+        total += c + x
     offsets[n] = total
     return total
 
 
 @ti.func
-def seg_depth(e: ti.i32, seg: ti.template(), screen: ti.template()) -> f32:
-    return f32(0.5) * (screen[seg[e]][2] + screen[seg[e] + 1][2])
+def vertex_of(key: ti.i64) -> ti.i32:
+    """The first vertex of the segment of a `sort_key`."""
+    return ti.cast(key & ti.i64(0x7FFFFFFF), ti.i32)
 
 
 @ti.func
-def after(a: ti.i32, b: ti.i32, zb: f32, seg: ti.template(), screen: ti.template()) -> ti.i32:
-    """1 if segment a sorts after segment b (whose mid-depth is zb): deeper, or as deep and
-    later; else 0."""
-    za = seg_depth(a, seg, screen)
-    later = 0
-    if za > zb or (za == zb and a > b):
-        later = 1
-    return later
+def sort_key(i: ti.i32, a: vec4f, b: vec4f) -> ti.i64:
+    """float32 bits of the mid-depth of the segment from vertex i (a) to i + 1 (b) << 32 | i:
+    for depths > 0 the integer order is (depth, index) order (segments are numbered in the
+    order of their first vertex), so bins sort without looking the segments up, and the key
+    holds the vertex compositing reads."""
+    z = f32(0.5) * (a[2] + b[2])
+    return (ti.cast(ti.bit_cast(z, ti.i32), ti.i64) << 32) | ti.cast(i, ti.i64)
 
 
 @ti.func
-def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template(), seg: ti.template(),
-             screen: ti.template()):
-    """Sort items[s0:s1] by segment mid-depth in place, ties by segment index (the scatter
-    that filled the bin ran in any thread order: a total order makes the result, and so the
-    frame, the same every time): Shell sort with Ciura's gaps."""
+def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template()):
+    """Sort the keys items[s0:s1] in place: by segment mid-depth,
+    ties by segment index (the scatter that filled the bin ran in any thread order: a total
+    order makes the result, and so the frame, the same every time). Shell sort with Ciura's
+    gaps."""
     for g in ti.static(_GAPS):
         if s1 - s0 > g:
             for k in range(s0 + g, s1):
-                e = items[k]
-                z = seg_depth(e, seg, screen)
+                key = items[k]
                 j = k
                 # Taichi evaluates both sides of `and`: test the bound before reading items[j - g]
                 while j - g >= s0:
-                    if not after(items[j - g], e, z, seg, screen):
+                    prev = items[j - g]
+                    if prev <= key:
                         break
-                    items[j] = items[j - g]
+                    items[j] = prev
                     j -= g
-                items[j] = e
+                items[j] = key
 
 
 @ti.kernel
 def composite_tiles(width: ti.i32, height: ti.i32,
                     offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                    items: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                    seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    items: ti.types.ndarray(dtype=ti.i64, ndim=1),
                     screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                     width_px: ti.types.ndarray(dtype=f32, ndim=1),
                     rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
@@ -170,33 +236,50 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                 out_alpha[py, px] = f32(1.0)
         n_open = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
         for bin_ in range(N_BINS):
+            sort_bin(offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1], items)
+        # the tile's segments in depth order; each one's ends are read an iteration ahead:
+        # the reads jump around the hair's arrays (cache misses) and overlap with blending
+        k0, k1 = offsets[tile * N_BINS], offsets[(tile + 1) * N_BINS]
+        zero = vec4f(0.0, 0.0, 0.0, 0.0)
+        a, b, wa, wb, ca, cb = zero, zero, f32(0.0), f32(0.0), zero, zero
+        if k0 < k1:
+            j = vertex_of(items[k0])
+            a, b, wa, wb = screen[j], screen[j + 1], width_px[j], width_px[j + 1]
+            ca, cb = rgba[j], rgba[j + 1]
+        for k in range(k0, k1):
             if n_open > 0:
-                s0, s1 = offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1]
-                sort_bin(s0, s1, items, seg, screen)
-                for k in range(s0, s1):
-                    if n_open > 0:
-                        n_open -= blend_segment(items[k], tx0, tx1, ty0, ty1, seg, screen,
-                                                width_px, rgba, mesh_key, out_rgb, out_alpha)
+                j = vertex_of(items[ti.min(k + 1, k1 - 1)])
+                a_next, b_next = screen[j], screen[j + 1]
+                wa_next, wb_next = width_px[j], width_px[j + 1]
+                ca_next, cb_next = rgba[j], rgba[j + 1]
+                n_open -= blend_segment(a, b, wa, wb, ca, cb, tx0, tx1, ty0, ty1, mesh_key,
+                                        out_rgb, out_alpha)
+                a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
         for py in range(ty0, ty1 + 1):
             for px in range(tx0, tx1 + 1):
                 t = out_alpha[py, px]
-                out_rgb[py, px] += t * base[py, px]
+                out_rgb[py, px] = out_rgb[py, px] + t * base[py, px]
                 out_alpha[py, px] = f32(1.0) - t
 
 
 @ti.func
-def blend_segment(e: ti.i32, tx0: ti.i32, tx1: ti.i32, ty0: ti.i32, ty1: ti.i32,
-                  seg: ti.template(), screen: ti.template(), width_px: ti.template(),
-                  rgba: ti.template(), mesh_key: ti.template(), out_rgb: ti.template(),
-                  out_alpha: ti.template()) -> ti.i32:
-    """Blend segment e's fragments inside the tile [tx0, tx1] x [ty0, ty1] behind what is
-    there; returns how many pixels became opaque. Walks the footprint column by column along
-    the segment's major axis, as `raster.raster_hair` does."""
+def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, tx0: ti.i32,
+                  tx1: ti.i32, ty0: ti.i32, ty1: ti.i32, mesh_key: ti.template(),
+                  out_rgb: ti.template(), out_alpha: ti.template()) -> ti.i32:
+    """Blend the fragments of a segment (screen ends a, b, widths wa, wb [px], shaded end
+    colours ca, cb) inside the tile [tx0, tx1] x [ty0, ty1] behind what is there; returns how
+    many pixels became opaque. Walks the footprint column by column along the segment's major
+    axis, as `raster.raster_hair` does. The coverage is `raster.coverage`'s with the
+    segment's constants (1 / length^2, 1 / length) hoisted out of the pixel loop: a pixel
+    costs no division or square root unless it is covered."""
     closed = 0
-    i = seg[e]
-    a, b = screen[i], screen[i + 1]
-    wa, wb = width_px[i], width_px[i + 1]
-    xmajor = ti.abs(b[0] - a[0]) >= ti.abs(b[1] - a[1])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    inv_l2 = f32(1.0) / (dx * dx + dy * dy)
+    inv_len = ti.sqrt(inv_l2)
+    dw = wb - wa
+    za, dzw = a[2] * a[3], b[2] * b[3] - a[2] * a[3]
+    dinv_w = b[3] - a[3]
+    xmajor = ti.abs(dx) >= ti.abs(dy)
     am, an = ti.select(xmajor, a[0], a[1]), ti.select(xmajor, a[1], a[0])
     bm, bn = ti.select(xmajor, b[0], b[1]), ti.select(xmajor, b[1], b[0])
     lo_m, hi_m = ti.select(xmajor, tx0, ty0), ti.select(xmajor, tx1, ty1)
@@ -206,29 +289,38 @@ def blend_segment(e: ti.i32, tx0: ti.i32, tx1: ti.i32, ty0: ti.i32, ty1: ti.i32,
     reach = f32(0.5) * ti.max(wa, wb) + f32(0.5)
     ext_m = reach * ti.abs(dn) / length
     ext_n = reach * length / ti.abs(dm)
+    slope = dn / dm
     m0 = ti.max(ti.cast(ti.ceil(ti.min(am, bm) - ext_m - f32(0.5)), ti.i32), lo_m)
     m1 = ti.min(ti.cast(ti.floor(ti.max(am, bm) + ext_m - f32(0.5)), ti.i32), hi_m)
     for m in range(m0, m1 + 1):
-        centre = an + (ti.cast(m, f32) + f32(0.5) - am) * dn / dm
+        centre = an + (ti.cast(m, f32) + f32(0.5) - am) * slope
         n0 = ti.max(ti.cast(ti.ceil(centre - ext_n - f32(0.5)), ti.i32), lo_n)
         n1 = ti.min(ti.cast(ti.floor(centre + ext_n - f32(0.5)), ti.i32), hi_n)
         for q in range(n0, n1 + 1):
             px, py = ti.select(xmajor, m, q), ti.select(xmajor, q, m)
             t_old = out_alpha[py, px]
             if t_old > OPAQUE:
-                cv = coverage(pixel_centre(px, py), a, b, wa, wb)
-                if cv[0] > f32(0.0):
-                    s = cv[1]
-                    inv_w = a[3] + s * (b[3] - a[3])
-                    depth = (a[2] * a[3] + s * (b[2] * b[3] - a[2] * a[3])) / inv_w
-                    if depth < key_depth_of(mesh_key[py, px]):
-                        c = rgba[i] * (f32(1.0) - s) + rgba[i + 1] * s
-                        alpha = cv[0] * c[3]
-                        out_rgb[py, px] += t_old * alpha * vec3f(c[0], c[1], c[2])
-                        t_new = t_old * (f32(1.0) - alpha)
-                        out_alpha[py, px] = t_new
-                        if t_new <= OPAQUE:
-                            closed += 1
+                ux = ti.cast(px, f32) + f32(0.5) - a[0]
+                uy = ti.cast(py, f32) + f32(0.5) - a[1]
+                s = (ux * dx + uy * dy) * inv_l2
+                if s >= f32(0.0) and s < f32(1.0):
+                    d = ti.abs(ux * dy - uy * dx) * inv_len
+                    half = f32(0.5) * (wa + s * dw)
+                    cov = ti.min(ti.min(d + half, f32(0.5)) - ti.max(d - half, f32(-0.5)),
+                                 f32(1.0))
+                    if cov > f32(0.0):
+                        depth = (za + s * dzw) / (a[3] + s * dinv_w)
+                        if depth < key_depth_of(mesh_key[py, px]):
+                            c = ca * (f32(1.0) - s) + cb * s
+                            alpha = cov * c[3]
+                            # a plain store: `+=` on an ndarray is an atomic add (a CAS loop
+                            # per channel on the CPU), and only this tile's thread writes here
+                            out_rgb[py, px] = (out_rgb[py, px]
+                                               + t_old * alpha * vec3f(c[0], c[1], c[2]))
+                            t_new = t_old * (f32(1.0) - alpha)
+                            out_alpha[py, px] = t_new
+                            if t_new <= OPAQUE:
+                                closed += 1
     return closed
 
 
@@ -237,26 +329,53 @@ def key_depth_of(key: ti.i64) -> f32:
     return ti.bit_cast(ti.cast(key >> 32, ti.i32), f32)
 
 
-def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
-    """Run the tiled compositor on uploaded, projected, shaded hair `hd` (see `render.frame`)
-    over `base` (H, W). Returns {"fragments": segment-tile entries, "tiles": count}."""
-    from .runtime import buffer
-    height, width = base.shape
+def bin_hair(hd: dict, near, mesh_key) -> dict:
+    """Bin uploaded, projected hair `hd` (see `render.frame`) into the screen tiles of
+    mesh_key's (H, W) and depth bins, skipping tiles where the meshes hide it, and mark in
+    hd["mark"] the vertices of the segments binned (the frame shades only those). Returns the
+    bins for `composite_binned`: {"offsets", "items", "fragments": segment-tile entries,
+    "tiles"}."""
+    from .runtime import buffer, chunks
+    height, width = mesh_key.shape
     n_tiles = -(-width // TILE) * -(-height // TILE)
     zr = buffer("tile_zrange", f32, (2,))
-    depth_range(hd["n_segments"], hd["seg"], hd["screen"], near, zr)
+    depth_range(hd["n_segments"], hd["seg"], hd["screen"], near,
+                chunks(hd["n_segments"], 64, 1024), zr)
     lo, hi = (float(v) for v in zr.to_numpy())
     zrange = (lo, N_BINS / max(hi - lo, 1e-6)) if hi >= lo else (0.0, 1.0)
-    cursor = buffer("tile_cursor", ti.i32, (n_tiles * N_BINS,))
+    far = buffer("tile_far", f32, (n_tiles,))
+    if CULL_HIDDEN:
+        tile_far_depth(mesh_key, far)
+    else:
+        far.fill(float("inf"))
+    count = buffer("tile_count", ti.i32, (n_tiles * N_BINS,))
+    extra = buffer("tile_extra", ti.i32, (n_tiles * N_BINS,))
     offsets = buffer("tile_offsets", ti.i32, (n_tiles * N_BINS + 1,))
-    cursor.fill(0)
-    dummy = buffer("tile_items_dummy", ti.i32, (1,))
-    args = (hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], near, zrange, width, height)
-    bin_segments(*args, 0, cursor, dummy)
-    total = exclusive_scan(n_tiles * N_BINS, cursor, offsets)
-    capacity = 1 << max(int(total - 1).bit_length(), 10)   # grow in powers of two: few reallocations
-    items = buffer("tile_items", ti.i32, (capacity,))
-    bin_segments(*args, 1, cursor, items)
-    composite_tiles(width, height, offsets, items, hd["seg"], hd["screen"], hd["width_px"],
-                    hd["rgba"], mesh_key, base, out_rgb, out_alpha)
-    return {"fragments": int(total), "tiles": n_tiles}
+    rank = buffer("tile_rank", ti.i32, (max(hd["n_segments"], 1), RANKED))
+    count.fill(0)
+    extra.fill(0)
+    hd["mark"].fill(0)
+    args = (hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], near, zrange, width,
+            height, far)
+    bin_segments(*args, 0, count, extra, rank, offsets, hd["mark"],
+                 buffer("tile_items_dummy", ti.i64, (1,)))
+    total = exclusive_scan(n_tiles * N_BINS, count, extra, offsets)
+    capacity = 1 << max(int(total - 1).bit_length(), 10)   # powers of two: few reallocations
+    items = buffer("tile_items", ti.i64, (capacity,))
+    bin_segments(*args, 1, count, extra, rank, offsets, hd["mark"], items)
+    return {"offsets": offsets, "items": items, "fragments": int(total), "tiles": n_tiles}
+
+
+def composite_binned(bins: dict, hd: dict, mesh_key, base, out_rgb, out_alpha) -> None:
+    """Blend the binned, shaded hair front to back per tile over `base` (H, W)."""
+    height, width = base.shape
+    composite_tiles(width, height, bins["offsets"], bins["items"], hd["screen"],
+                    hd["width_px"], hd["rgba"], mesh_key, base, out_rgb, out_alpha)
+
+
+def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
+    """Bin and composite uploaded, projected, shaded hair `hd` over `base` (H, W) in one call.
+    Returns {"fragments": segment-tile entries, "tiles": count}."""
+    bins = bin_hair(hd, near, mesh_key)
+    composite_binned(bins, hd, mesh_key, base, out_rgb, out_alpha)
+    return {"fragments": bins["fragments"], "tiles": bins["tiles"]}

@@ -398,3 +398,65 @@ def test_a_frame_renders_to_the_same_bytes_every_time():
     frames = [render.render_frame(camera, hair=hair, lights=lights) for _ in range(4)]
     assert all(np.array_equal(frames[0], f) for f in frames[1:])
     assert frames[0].std() > 1.0  # hair was drawn
+
+
+def test_culling_hidden_hair_changes_no_pixel(monkeypatch):
+    """The tiled compositor bins hair before shading, drops segments from tiles where the
+    meshes hide them, and shades only the vertices of segments binned somewhere: the frame
+    is the same to the byte as binning and shading everything."""
+    from render import tiles
+    from render.bench import sphere_mesh, synthetic_hair
+    hair = synthetic_hair(1000, 12, width=3e-4, seed=5)
+    camera = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=320,
+                    height=240)
+    lights = render.three_point_lights((0.05, 0.02, 0.62), (0.0, 1.0, 0.0))
+    frames, shaded = {}, {}
+    for cull in (True, False):
+        monkeypatch.setattr(tiles, "CULL_HIDDEN", cull)
+        frames[cull] = render.render_buffers(camera, hair=hair, meshes=[sphere_mesh()],
+                                             lights=lights)
+        mark = render.runtime.buffer("hair_mark", ti.i32, (len(hair.vertices),))
+        shaded[cull] = mark.to_numpy().mean()
+    assert frames[True]["alpha"].max() > 0.5   # hair in view
+    assert shaded[True] < 0.9                  # and some hidden behind the head
+    for k in ("image", "rgb", "alpha"):
+        np.testing.assert_array_equal(frames[True][k], frames[False][k])
+
+
+def test_device_copies_follow_the_groom():
+    """Rendering the same Hair again reuses its device copies (its arrays are read-only);
+    another groom of the same shape in between is uploaded, not mistaken for it."""
+    from render.bench import synthetic_hair
+    a, b = synthetic_hair(200, 8, seed=1), synthetic_hair(200, 8, seed=2)
+    assert a.vertices.shape == b.vertices.shape
+    camera = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=W,
+                    height=H)
+    first = render.render_frame(camera, hair=a)
+    other = render.render_frame(camera, hair=b)
+    again = render.render_frame(camera, hair=a)
+    fresh = render.render_frame(camera, hair=Hair(points=a.points, colours=a.colours,
+                                                  widths=a.widths))
+    assert not np.array_equal(first, other)
+    np.testing.assert_array_equal(first, again)
+    np.testing.assert_array_equal(first, fresh)
+    with pytest.raises(ValueError):
+        a.vertices[0, 0] = 1.0
+
+
+def test_frame_does_not_depend_on_how_work_is_chunked(monkeypatch):
+    """Reductions and vertex shading walk contiguous runs per thread (few long runs on the
+    CPU, many short ones elsewhere; shading reuses a fibre's constants along a run): the GPU
+    chunking, run here on the CPU, gives the same bytes."""
+    from render.bench import sphere_mesh, synthetic_hair
+    hair = synthetic_hair(500, 12, width=2e-4, seed=7)
+    camera = Camera(eye=(0.05, 0.02, 0.62), target=(0.0, -0.06, 0.0), fov_y=40.0, width=160,
+                    height=120)
+    lights = render.three_point_lights((0.05, 0.02, 0.62), (0.0, 1.0, 0.0))
+    frames = []
+    for cpu in (True, False):
+        monkeypatch.setattr(render.runtime, "on_cpu", lambda cpu=cpu: cpu)
+        frames.append(render.render_buffers(camera, hair=hair, meshes=[sphere_mesh()],
+                                            lights=lights))
+    assert frames[0]["alpha"].max() > 0.5
+    for k in ("image", "rgb", "alpha"):
+        np.testing.assert_array_equal(frames[0][k], frames[1][k])
