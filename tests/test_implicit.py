@@ -267,6 +267,19 @@ def test_stiff_fine_strands_at_a_large_step_never_gain_energy():
     assert row["energy_max_rise"] <= 1e-3
 
 
+def test_kmoch_twist_on_elliptic_strands_is_refused_by_the_implicit_step():
+    """Kmoch's rule on elliptic strands puts twist forces stiffer than bending outside the
+    implicit matrix (every such stability case diverged or gained energy): refused with a
+    message naming both; round strands solve their twist exactly under the rule and run."""
+    groom = th.Groom.curly(**CURLY)
+    with pytest.raises(ValueError, match="twist='kmoch' on elliptic strands.*integrator='explicit'"):
+        th.Simulator(groom, [th.Material(), th.Material(ellipticity=1.5)][1], twist="kmoch", integrator="implicit")
+    with pytest.raises(ValueError, match="twist='kmoch'"):
+        th.Simulator(th.Groom.concatenate([groom, groom]), [th.Material(), th.Material(ellipticity=1.5)],
+                     twist="kmoch", integrator="implicit")
+    th.Simulator(groom, th.Material(), twist="kmoch", integrator="implicit")
+
+
 def test_implicit_cantilever_settles_on_the_elastica_at_large_steps():
     material = th.Material(**BEAM)
     ei, rho_a = material.bending_stiffness[0], material.linear_density

@@ -19,6 +19,12 @@ from ..rods.twist import TWIST_MODES, held_twist_forces
 from ..validation import is_integer
 
 
+IMPLICIT_KMOCH_REFUSAL = (
+    "twist='kmoch' on elliptic strands (ellipticity > 1) runs with integrator='explicit': the rule's "
+    "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
+    "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
+
+
 class RodSystem:
     """The rods of `groom` made of `material` (one Material or one per strand).
 
@@ -41,6 +47,10 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        if integrator == "implicit" and twist == "kmoch" and any(
+                getattr(m, "ellipticity", 1.0) > 1.0 for m in (material if isinstance(material, (list, tuple)) else [material])):
+            # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
+            raise ValueError(IMPLICIT_KMOCH_REFUSAL)
         self.groom, self.twist, self.root, self.integrator = groom, twist, root, integrator
         self.twist_iterations = int(twist_iterations)
         self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
