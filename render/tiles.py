@@ -4,7 +4,8 @@ The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
 tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
-first vertex), walks them front to back (reading each segment's ends one iteration ahead:
+first vertex; each bin just before the walk reaches it, so a tile that turns opaque leaves the
+rest unsorted), walks them front to back (reading each segment's ends one iteration ahead:
 those reads are cache misses) and blends each segment's fragments into the tile's pixels
 front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
 be an atomic add):
