@@ -4,7 +4,8 @@ The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
 tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
-first vertex), walks them front to back (reading each segment's ends one iteration ahead:
+first vertex; each bin just before the walk reaches it, so a tile that turns opaque leaves the
+rest unsorted), walks them front to back (reading each segment's ends one iteration ahead:
 those reads are cache misses) and blends each segment's fragments into the tile's pixels
 front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
 be an atomic add):
@@ -84,20 +85,25 @@ def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
 
 @ti.kernel
 def tile_far_depth(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
-                   far: ti.types.ndarray(dtype=f32, ndim=1)):
+                   far: ti.types.ndarray(dtype=f32, ndim=1),
+                   near: ti.types.ndarray(dtype=f32, ndim=1)):
     """far[tile] = the farthest mesh depth [m] over the tile's pixels (+inf where a pixel shows
-    the background): hair wholly behind it in a tile has no fragment there. One thread per
+    the background): hair wholly behind it in a tile has no fragment there; near[tile] = the
+    nearest: hair wholly in front of it passes every pixel's depth test. One thread per
     tile."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     for tile in range(tiles_x * tiles_y):
         tx0, ty0 = (tile % tiles_x) * TILE, (tile // tiles_x) * TILE
-        d = f32(0.0)
+        d, dn = f32(0.0), f32(3.0e38)
         for py in range(ty0, ti.min(ty0 + TILE, height)):
             for px in range(tx0, ti.min(tx0 + TILE, width)):
-                d = ti.max(d, key_depth_of(mesh_key[py, px]))
+                z = key_depth_of(mesh_key[py, px])
+                d = ti.max(d, z)
+                dn = ti.min(dn, z)
         far[tile] = d
+        near[tile] = dn
 
 
 @ti.kernel
@@ -211,6 +217,16 @@ def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template()):
 
 
 @ti.kernel
+def sort_tiles(n_tiles: ti.i32, offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
+               items: ti.types.ndarray(dtype=ti.i64, ndim=1)):
+    """Sort each (tile, depth bin) cell's keys (`sort_bin`). One thread per tile."""
+    ti.loop_config(block_dim=1)
+    for tile in range(n_tiles):
+        for bin_ in range(N_BINS):
+            sort_bin(offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1], items)
+
+
+@ti.kernel
 def composite_tiles(width: ti.i32, height: ti.i32,
                     offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
                     items: ti.types.ndarray(dtype=ti.i64, ndim=1),
@@ -218,6 +234,7 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                     width_px: ti.types.ndarray(dtype=f32, ndim=1),
                     rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
                     mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                    mesh_near: ti.types.ndarray(dtype=f32, ndim=1),
                     base: ti.types.ndarray(dtype=vec3f, ndim=2),
                     out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
                     out_alpha: ti.types.ndarray(dtype=f32, ndim=2)):
@@ -235,26 +252,41 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                 out_rgb[py, px] = vec3f(0.0, 0.0, 0.0)
                 out_alpha[py, px] = f32(1.0)
         n_open = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
-        for bin_ in range(N_BINS):
-            sort_bin(offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1], items)
+        near_tile = mesh_near[tile]
         # the tile's segments in depth order; each one's ends are read an iteration ahead:
         # the reads jump around the hair's arrays (cache misses) and overlap with blending
+        # bins are sorted as the walk reaches them (one entry ahead), so a tile that turns
+        # opaque leaves the bins behind unsorted
         k0, k1 = offsets[tile * N_BINS], offsets[(tile + 1) * N_BINS]
+        next_bin, sorted_end = 0, k0
+        while sorted_end <= ti.min(k0 + 1, k1 - 1) and next_bin < N_BINS:
+            sorted_end = offsets[tile * N_BINS + next_bin + 1]
+            sort_bin(offsets[tile * N_BINS + next_bin], sorted_end, items)
+            next_bin += 1
         zero = vec4f(0.0, 0.0, 0.0, 0.0)
         a, b, wa, wb, ca, cb = zero, zero, f32(0.0), f32(0.0), zero, zero
         if k0 < k1:
             j = vertex_of(items[k0])
             a, b, wa, wb = screen[j], screen[j + 1], width_px[j], width_px[j + 1]
             ca, cb = rgba[j], rgba[j + 1]
-        for k in range(k0, k1):
-            if n_open > 0:
-                j = vertex_of(items[ti.min(k + 1, k1 - 1)])
-                a_next, b_next = screen[j], screen[j + 1]
-                wa_next, wb_next = width_px[j], width_px[j + 1]
-                ca_next, cb_next = rgba[j], rgba[j + 1]
-                n_open -= blend_segment(a, b, wa, wb, ca, cb, tx0, tx1, ty0, ty1, mesh_key,
-                                        out_rgb, out_alpha)
-                a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
+        k = k0
+        while k < k1 and n_open > 0:
+            kn = ti.min(k + 1, k1 - 1)
+            while sorted_end <= kn and next_bin < N_BINS:
+                sorted_end = offsets[tile * N_BINS + next_bin + 1]
+                sort_bin(offsets[tile * N_BINS + next_bin], sorted_end, items)
+                next_bin += 1
+            j = vertex_of(items[kn])
+            a_next, b_next = screen[j], screen[j + 1]
+            wa_next, wb_next = width_px[j], width_px[j + 1]
+            ca_next, cb_next = rgba[j], rgba[j + 1]
+            # a segment wholly in front of the tile's nearest mesh passes every depth
+            # test (fragment depths interpolate the ends': a relative margin for rounding)
+            tested = ti.max(a[2], b[2]) * f32(1.0 + 1e-5) >= near_tile
+            n_open -= blend_segment(a, b, wa, wb, ca, cb, tx0, tx1, ty0, ty1, tested,
+                                    mesh_key, out_rgb, out_alpha)
+            a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
+            k += 1
         for py in range(ty0, ty1 + 1):
             for px in range(tx0, tx1 + 1):
                 t = out_alpha[py, px]
@@ -264,10 +296,11 @@ def composite_tiles(width: ti.i32, height: ti.i32,
 
 @ti.func
 def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, tx0: ti.i32,
-                  tx1: ti.i32, ty0: ti.i32, ty1: ti.i32, mesh_key: ti.template(),
+                  tx1: ti.i32, ty0: ti.i32, ty1: ti.i32, tested: ti.i32, mesh_key: ti.template(),
                   out_rgb: ti.template(), out_alpha: ti.template()) -> ti.i32:
     """Blend the fragments of a segment (screen ends a, b, widths wa, wb [px], shaded end
-    colours ca, cb) inside the tile [tx0, tx1] x [ty0, ty1] behind what is there; returns how
+    colours ca, cb) inside the tile [tx0, tx1] x [ty0, ty1] behind what is there (depth-tested
+    against the meshes only if `tested`); returns how
     many pixels became opaque. Walks the footprint column by column along the segment's major
     axis, as `raster.raster_hair` does. The coverage is `raster.coverage`'s with the
     segment's constants (1 / length^2, 1 / length) hoisted out of the pixel loop: a pixel
@@ -309,8 +342,11 @@ def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, tx
                     cov = ti.min(ti.min(d + half, f32(0.5)) - ti.max(d - half, f32(-0.5)),
                                  f32(1.0))
                     if cov > f32(0.0):
-                        depth = (za + s * dzw) / (a[3] + s * dinv_w)
-                        if depth < key_depth_of(mesh_key[py, px]):
+                        front = True
+                        if tested:
+                            depth = (za + s * dzw) / (a[3] + s * dinv_w)
+                            front = depth < key_depth_of(mesh_key[py, px])
+                        if front:
                             c = ca * (f32(1.0) - s) + cb * s
                             alpha = cov * c[3]
                             # a plain store: `+=` on an ndarray is an atomic add (a CAS loop
@@ -344,10 +380,12 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     lo, hi = (float(v) for v in zr.to_numpy())
     zrange = (lo, N_BINS / max(hi - lo, 1e-6)) if hi >= lo else (0.0, 1.0)
     far = buffer("tile_far", f32, (n_tiles,))
+    mesh_near = buffer("tile_mesh_near", f32, (n_tiles,))
     if CULL_HIDDEN:
-        tile_far_depth(mesh_key, far)
+        tile_far_depth(mesh_key, far, mesh_near)
     else:
         far.fill(float("inf"))
+        mesh_near.fill(0.0)
     count = buffer("tile_count", ti.i32, (n_tiles * N_BINS,))
     extra = buffer("tile_extra", ti.i32, (n_tiles * N_BINS,))
     offsets = buffer("tile_offsets", ti.i32, (n_tiles * N_BINS + 1,))
@@ -363,14 +401,15 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     capacity = 1 << max(int(total - 1).bit_length(), 10)   # powers of two: few reallocations
     items = buffer("tile_items", ti.i64, (capacity,))
     bin_segments(*args, 1, count, extra, rank, offsets, hd["mark"], items)
-    return {"offsets": offsets, "items": items, "fragments": int(total), "tiles": n_tiles}
+    return {"offsets": offsets, "items": items, "fragments": int(total), "tiles": n_tiles,
+            "mesh_near": mesh_near}
 
 
 def composite_binned(bins: dict, hd: dict, mesh_key, base, out_rgb, out_alpha) -> None:
     """Blend the binned, shaded hair front to back per tile over `base` (H, W)."""
     height, width = base.shape
     composite_tiles(width, height, bins["offsets"], bins["items"], hd["screen"],
-                    hd["width_px"], hd["rgba"], mesh_key, base, out_rgb, out_alpha)
+                    hd["width_px"], hd["rgba"], mesh_key, bins["mesh_near"], base, out_rgb, out_alpha)
 
 
 def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
