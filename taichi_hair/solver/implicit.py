@@ -144,7 +144,8 @@ def assemble_grab_stiffness(s, k, scale, load_history, md: ti.template(), st: ti
             kg = grab_stiffness(dr.tools, dr.tool_points, k, p)
             if load_history:
                 st.dx[s, i] += ti.cast(kg @ ti.cast(st.history[s, i, HIST_DX], ti.f64), float)
-                st.force[s, i] += grab_force(dr.tools, dr.tool_points, k + 1, p) - grab_force(dr.tools, dr.tool_points, k, p)
+                st.force[s, i] += (grab_force(dr.tools, dr.tool_points, k + 1, p)
+                                   - grab_force(dr.tools, dr.tool_points, k, p))
             st.blocks[s, i, 0] += embed(scale * kg)
 
 

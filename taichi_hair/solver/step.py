@@ -24,8 +24,8 @@ from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
-from .implicit import (CORRECTION_TOL, MAX_CORRECTIONS, length_residual, assemble_stiffness, clear_system, record_elastic_change, strand_implicit_pass,
-                       strand_implicit_velocities)
+from .implicit import (CORRECTION_TOL, MAX_CORRECTIONS, assemble_stiffness, clear_system, length_residual,
+                       record_elastic_change, strand_implicit_pass, strand_implicit_velocities)
 from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, STEP_VALUES, ContactGridArgs,
                              contact_pass, resolve_strand_contacts)
 from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
@@ -486,7 +486,7 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     if ti.static(fl.implicit):
         # the predictor, then length corrections until the edges are within CORRECTION_TOL (at
         # most MAX_CORRECTIONS): one at small steps; large steps and tight curls leave the first
-        # correction 1e-3 off, and the fast projection taking that up in the metric M kinks the
+        # correction 1e-5 to 1e-3 off, and the fast projection taking that up in the metric M kinks the
         # strand (docs/model.md, "The implicit step"). A run-time loop: one copy of the solve.
         passes = 0
         again = 1

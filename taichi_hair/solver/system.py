@@ -47,8 +47,9 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        if integrator == "implicit" and twist == "kmoch" and any(
-                getattr(m, "ellipticity", 1.0) > 1.0 for m in (material if isinstance(material, (list, tuple)) else [material])):
+        materials = material if isinstance(material, (list, tuple)) else [material]
+        if integrator == "implicit" and twist == "kmoch" and any(getattr(m, "ellipticity", 1.0) > 1.0
+                                                                 for m in materials):
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
             raise ValueError(IMPLICIT_KMOCH_REFUSAL)
         self.groom, self.twist, self.root, self.integrator = groom, twist, root, integrator
