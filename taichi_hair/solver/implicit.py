@@ -220,8 +220,9 @@ def clear_system(s, n, clear_dx, st: ti.template()):
 @ti.func
 def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch: ti.template(), md: ti.template(),
                          st: ti.template(), dr: ti.template()):
-    """One of the step's two solves (module doc), chosen at run time so the kernel holds one
-    copy of the assembly and the solver (they dominate its compile time).
+    """One of the step's solves (module doc): the predictor, or a length correction (repeated
+    by stage_integrate while an edge is off by more than CORRECTION_TOL), chosen at run time so
+    the kernel holds one copy of the assembly and the solver (they dominate its compile time).
 
     correction 0, the BDF2 predictor: solves for v_{n+1} with the edge lengths linearised
     inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n

@@ -486,8 +486,9 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     if ti.static(fl.implicit):
         # the predictor, then length corrections until the edges are within CORRECTION_TOL (at
         # most MAX_CORRECTIONS): one at small steps; large steps and tight curls leave the first
-        # correction 1e-5 to 1e-3 off, and the fast projection taking that up in the metric M kinks the
-        # strand (docs/model.md, "The implicit step"). A run-time loop: one copy of the solve.
+        # correction 1e-5 to 1e-3 off, and the fast projection taking that up in the metric M
+        # kinks the strand (docs/model.md, "The implicit step"). A run-time loop: one copy of
+        # the solve.
         passes = 0
         again = 1
         while again:
@@ -652,7 +653,6 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
     flags, arrays_, fraction = launch_flags(plan, control, pins)
     args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
-    projection = PROJECTION
     if timers is None:
         first = 0
         if interaction is not None:
@@ -662,9 +662,9 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
         if strand_contact is None:
             run_stages(first, len(STAGES), *args)
             return
-        run_stages(first, projection + 1, *args)
-        strand_contact(lambda: run_stages(projection, projection + 1, *args))
-        run_stages(projection + 1, len(STAGES), *args)
+        run_stages(first, PROJECTION + 1, *args)
+        strand_contact(lambda: run_stages(PROJECTION, PROJECTION + 1, *args))
+        run_stages(PROJECTION + 1, len(STAGES), *args)
         return
     for k, (name, _) in enumerate(STAGES):
         with timers(name):
@@ -672,9 +672,9 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
         if k == 0 and interaction is not None:
             with timers("hair-hair"):
                 interaction(model, state, control, h)
-        if k == projection and strand_contact is not None:
+        if k == PROJECTION and strand_contact is not None:
             with timers("strand contact"):
-                strand_contact(lambda: run_stages(projection, projection + 1, *args))
+                strand_contact(lambda: run_stages(PROJECTION, PROJECTION + 1, *args))
 
 
 @ti.func

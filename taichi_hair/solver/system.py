@@ -9,6 +9,7 @@ import numpy as np
 from ..rods import arrays
 from ..rods.frames import update_frames, update_material_frames
 from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
+from ..rods.materials import per_strand_materials
 from ..world.scene import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
@@ -47,9 +48,8 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        materials = material if isinstance(material, (list, tuple)) else [material]
-        if integrator == "implicit" and twist == "kmoch" and any(getattr(m, "ellipticity", 1.0) > 1.0
-                                                                 for m in materials):
+        if integrator == "implicit" and twist == "kmoch" and any(
+                m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)):
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
             raise ValueError(IMPLICIT_KMOCH_REFUSAL)
         self.groom, self.twist, self.root, self.integrator = groom, twist, root, integrator
