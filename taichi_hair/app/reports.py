@@ -619,6 +619,7 @@ class StabilityCase:
     projection_iterations: int = 100
     quick: bool = False
     integrator: str = "explicit"
+    projection: str = "fast"
 
 
 BASE_CASE = StabilityCase(name="human hair")
@@ -631,7 +632,8 @@ STABILITY_AXES = {
     "hand": ("hand_speed",), "pin": ("pin",),
     "interaction": ("interaction", "cell", "repulsion", "interaction_friction"),
     "head": ("head",), "twist": ("twist",), "precision": ("precision",), "limits": ("strict", "max_substeps"),
-}  # the integrator is not an axis: `report stability --integrator implicit` runs the whole matrix with it
+}  # the integrator and projection are not axes: `report stability --integrator implicit` (or
+#   `--projection shake`) runs the whole matrix with it
 
 
 def case_axes(case: StabilityCase) -> list:
@@ -784,7 +786,7 @@ def _stability_scene(case: StabilityCase):
                         radius=case.radius, ellipticity=case.ellipticity)
     options = dict(dt=case.dt, drag=case.drag, twist=case.twist, strict=case.strict,
                    max_substeps=case.max_substeps, projection_iterations=case.projection_iterations,
-                   integrator=case.integrator)
+                   integrator=case.integrator, projection=case.projection)
     if case.shake_hz:
         options["root_motion"] = Shake(amplitude_deg=case.shake_deg, frequency_hz=case.shake_hz)
     if case.wind:
@@ -1026,11 +1028,11 @@ def stability_counts(rows) -> dict:
 
 def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: float | None = None,
                      log=None, precision: str = "both", arch: str = "cpu", client=None,
-                     integrator: str | None = None) -> dict:
+                     integrator: str | None = None, projection: str | None = None) -> dict:
     """Run the matrix (or `cases`) for `duration` simulated seconds each (STABILITY_DURATION);
     precision "both": each case in its own precision, one process per precision (Taichi fixes it
     at init: this one if it can, else a worker subprocess); "float32" / "float64": every case in
-    that one. integrator: run every case with this one (None: each case's own). With a dask
+    that one. integrator, projection: run every case with this one (None: each case's own). With a dask
     `client`, the cases are spread over its cluster instead. Writes
     stability.json to out_dir and returns the result."""
     duration = duration or STABILITY_DURATION[bool(quick)]
@@ -1039,6 +1041,8 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
         cases = [replace(c, precision=precision) for c in cases]
     if integrator is not None:
         cases = [replace(c, integrator=integrator) for c in cases]
+    if projection is not None:
+        cases = [replace(c, projection=projection) for c in cases]
     wanted = list(dict.fromkeys(c.precision for c in cases))
     here = runtime.precision() if runtime.taichi_is_initialized() else None
     wanted.sort(key=lambda p: p != here)  # this process's precision first, no subprocess for it
@@ -1157,7 +1161,8 @@ def _stability_main(args) -> int:
         return 0
     with _cluster_client(args) as client:
         result = stability_report(args.quick, args.out, log=_log, precision=args.precision, arch=args.arch,
-                                  duration=args.duration, client=client, integrator=args.integrator)
+                                  duration=args.duration, client=client, integrator=args.integrator,
+                                  projection=args.projection)
     print(json.dumps(result, indent=1) if args.json else format_stability(result))
     return 1 if result["failures"] else 0
 
@@ -1188,6 +1193,8 @@ def _add_commands(sub):
     stab.add_argument("--duration", type=float, help="simulated seconds per case (default 0.2, quick 0.1)")
     stab.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
                       help="run every case with this integrator (default: each case's own, explicit)")
+    stab.add_argument("--projection", default=None, choices=["fast", "shake"],
+                      help="run every case with this projection of the explicit step (default: each case's own, fast)")
     stab.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     cluster.add_arguments(stab)
     stab.set_defaults(func=_stability_main)

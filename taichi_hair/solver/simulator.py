@@ -92,6 +92,11 @@ class Simulator:
         "implicit" (linearised BDF2 with the bending stiffness solved per strand, docs/model.md
         "The implicit step": stable at any dt, no substeps; the stability bound, substeps,
         max_substeps and strict apply to the explicit integrator only).
+    projection: the explicit step's inextensibility projection, "fast" (default: Goldenthal et
+        al.'s fast projection, which damps like backward Euler on the constraint forces, a
+        first-order loss of swing) or "shake" (constraint forces along the start-of-step edges,
+        SHAKE: an undamped swing keeps its energy; docs/model.md "Time step" says where it is
+        less robust and why "fast" stays the default). Explicit integrator only.
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -102,10 +107,11 @@ class Simulator:
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
-                 integrator: str = "explicit", strand_contact=None):
+                 integrator: str = "explicit", strand_contact=None, projection: str = "fast"):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                         wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact)
+                         wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
+                         projection)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
@@ -145,7 +151,7 @@ class Simulator:
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
-            twist_iterations=twist_iterations, root=root, integrator=integrator)
+            twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self.time = 0.0
@@ -498,7 +504,7 @@ class Simulator:
         residuals = self.state.residuals.to_numpy()
         report = {
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
-            "substeps": self.substeps,
+            "projection": self.plan.projection, "substeps": self.substeps,
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
@@ -652,10 +658,11 @@ def _check_max_substeps(value) -> int:
 
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                     wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact):
+                     wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
+                     projection):
     check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
                         touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag,
-                        integrator=integrator, strand_contact=strand_contact)
+                        integrator=integrator, strand_contact=strand_contact, projection=projection)
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
         if not (is_integer(value) and value >= 1):

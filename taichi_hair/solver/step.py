@@ -43,6 +43,13 @@ TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2, "free": 3}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
+# SHAKE follows the start-of-step constraint gradient while each iteration at least halves the
+# residual; slower than that (a head jump, a contact push) it switches to the current gradient
+SHAKE_RATE = 0.5
+# ... and while every edge stays within acos(SHAKE_TURN_COS) = 8 degrees of its start-of-step
+# direction: SHAKE's chord matrix G0 M^-1 G0^T misjudges C's slope along G0 by cos(turn), and an
+# edge a contact turned across (a rope piling onto itself) made it overshoot without bound
+SHAKE_TURN_COS = 0.99
 # a twist solve that stalled at the rounding floor above this scaled residual is a failed step
 TWIST_FAILED_ABOVE = 1e-3
 PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWITCH = (
@@ -67,6 +74,7 @@ class StepPlan:
     twist_iterations: int
     root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
     integrator: str = "explicit"  # one of world.scene.INTEGRATORS
+    projection: str = "fast"  # one of world.scene.PROJECTIONS (explicit integrator)
 
     @property
     def pinned_root(self) -> bool:
@@ -120,7 +128,8 @@ class StageFlags:
     compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
     moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held; clips:
     a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
-    symplectic Euler."""
+    symplectic Euler; shake: the projection's constraint forces along the start-of-step edges
+    (strand_project)."""
 
     external: bool
     wind_field: bool
@@ -134,6 +143,7 @@ class StageFlags:
     root_mode: int
     implicit: bool = False
     clips: bool = False
+    shake: bool = False
 
 
 @functools.lru_cache(maxsize=256)
@@ -143,7 +153,7 @@ def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False
     flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
                  touch=plan.touch, pins=pins, root_mode=plan.root_mode,
-                 implicit=plan.integrator == "implicit", clips=clips)
+                 implicit=plan.integrator == "implicit", clips=clips, shake=plan.projection == "shake")
     flags.update(overrides)
     return StageFlags(**flags)
 
@@ -294,17 +304,29 @@ def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
 
 
 @ti.func
-def solve_inextensibility(s, n, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
-    """One fast-projection iteration: (grad C M^-1 grad C^T) lambda = C (tridiagonal, assembled
-    in diag/upper/rhs by the residual pass), x -= M^-1 grad C^T lambda; the correction is added
-    to the step's displacement dx too (see strand_velocities). A slider's pair moves by
-    -2 lambda b (b . e) through the edge before it, along its axis only."""
+def constraint_edge(s, j, shake, fl: ti.template(), st: ti.template()):
+    """Edge j's direction in the constraint gradient G: its start-of-step vector under SHAKE
+    while that converges (fl.shake and shake = 1), else its current one (the fast projection)."""
+    e = st.x[s, j + 1] - st.x[s, j]
+    if ti.static(fl.shake):
+        if shake:
+            e = st.x_prev[s, j + 1] - st.x_prev[s, j]
+    return e
+
+
+@ti.func
+def solve_inextensibility(s, n, shake, fl: ti.template(), md: ti.template(), st: ti.template(),
+                          dr: ti.template()):
+    """One projection iteration: (G M^-1 G^T) dlambda = C(x) (tridiagonal, assembled in
+    diag/upper/rhs by assemble_projection), x -= M^-1 G^T dlambda, G along constraint_edge;
+    the correction is added to the step's displacement dx too (see strand_velocities). A
+    slider's pair moves by -2 dlambda b (b . e) through the edge before it, along its axis only."""
     thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
     slide = vec3(0.0)
     if ti.static(fl.clips):
         b = slider_vector(s, n, fl, dr)
         if b.dot(b) > 0.0 and n >= 3:
-            slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(st.x[s, n - 2] - st.x[s, n - 3])
+            slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(constraint_edge(s, n - 3, shake, fl, st))
     # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
     # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
     e_before = vec3(0.0)
@@ -312,7 +334,7 @@ def solve_inextensibility(s, n, fl: ti.template(), md: ti.template(), st: ti.tem
         move = vec3(0.0)
         e = vec3(0.0)
         if i + 1 < n:
-            e = st.x[s, i + 1] - st.x[s, i]
+            e = constraint_edge(s, i, shake, fl, st)
             move += st.rhs[s, i] * e
         if i > 0:
             move -= st.rhs[s, i - 1] * e_before
@@ -327,51 +349,80 @@ def solve_inextensibility(s, n, fl: ti.template(), md: ti.template(), st: ti.tem
 
 
 @ti.func
+def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: ti.template(),
+                        dr: ti.template()):
+    """The projection's tridiagonal system G M^-1 G^T (diag, upper) and right-hand side C(x)
+    (rhs), G along constraint_edge. An edge with both nodes held (a clip) is prescribed: its row
+    is the identity with a zero right-hand side, outside the residual; with pins the diagonal is
+    damped (HELD_DAMPING). Returns (max_j |C_j| / |ebar^j|^2 over the free edges, 1 if an edge
+    has turned past SHAKE_TURN_COS from its G direction, else 0)."""
+    res = 0.0
+    turned = 0
+    b = slider_vector(s, n, fl, dr)
+    for j in range(n - 1):
+        e = st.x[s, j + 1] - st.x[s, j]
+        g = constraint_edge(s, j, shake, fl, st)
+        w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
+        slide = 0.0  # the slider's share (b . g)^2 of the edge before it
+        if ti.static(fl.clips):
+            if j == n - 3:
+                slide = b.dot(g) * b.dot(g)
+        st.rhs[s, j] = 0.0
+        st.diag[s, j] = 1.0
+        if w > 0.0 or slide > 0.0:
+            l2 = md.rest_length[s, j] * md.rest_length[s, j]
+            c = e.dot(e) - l2
+            res = ti.max(res, ti.abs(c) / l2)
+            st.rhs[s, j] = c
+            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
+            if ti.static(fl.shake):
+                if e.dot(g) < SHAKE_TURN_COS * ti.sqrt(e.dot(e) * g.dot(g)):
+                    turned = 1
+            if ti.static(fl.pins):
+                st.diag[s, j] *= 1.0 + HELD_DAMPING
+        if j + 1 < n - 1:
+            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(constraint_edge(s, j + 1, shake, fl, st))
+    return res, turned
+
+
+@ti.func
 def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                    dr: ti.template(), co: ti.template()):
-    """Fast projection (Goldenthal et al. 2007) of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free
-    edge, alternating with the contact pushes (Gauss-Seidel), until max_j |C_j| / |ebar^j|^2 <
-    projection_tol after contacts, projection_iterations, or a stall (an iteration removing
-    less than 10 % of a residual already below STALL_BELOW: the precision's rounding floor; far
-    from satisfied, slow progress is the nonlinear start of Gauss-Newton and it keeps going).
-    Held nodes (the root, pins) have infinite mass (inv_mass 0); an edge with both nodes held (a
-    clip) is prescribed: its row is the identity with a zero right-hand side, outside the
-    residual; with pins the diagonal is damped (HELD_DAMPING). Returns (iterations, final
-    residual)."""
+    """Projection of C_j = |e^j|^2 - |ebar^j|^2 = 0 on every free edge, alternating with the
+    contact pushes (Gauss-Seidel): Gauss-Newton steps along the current gradient (the fast
+    projection of Goldenthal et al. 2007), or with fl.shake along the start-of-step gradient
+    (SHAKE) while each iteration at least halves the residual (SHAKE_RATE) and no edge has turned
+    past SHAKE_TURN_COS from its start (else, a head jump or a contact, it switches to the
+    current gradient). Ends when max_j |C_j| /
+    |ebar^j|^2 < projection_tol after contacts, at projection_iterations, or at a stall (an
+    iteration removing less than 10 % of a residual already below STALL_BELOW: the precision's
+    rounding floor; far from satisfied, slow progress is the nonlinear start of Gauss-Newton and
+    it keeps going). Held nodes (the root, pins) have infinite mass (inv_mass 0). Returns
+    (iterations, final residual)."""
     n = md.node_count[s]
     now, prev = head_poses(k, fl)
     it = 0
     res = 0.0
     previous = 0.0
+    shake = 0
+    if ti.static(fl.shake):
+        shake = 1
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
-        res = 0.0
-        b = slider_vector(s, n, fl, dr)
-        for j in range(n - 1):
-            e = st.x[s, j + 1] - st.x[s, j]
-            w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
-            slide = 0.0  # the slider's share (b . e)^2 of the edge before it
-            if ti.static(fl.clips):
-                if j == n - 3:
-                    slide = b.dot(e) * b.dot(e)
-            st.rhs[s, j] = 0.0
-            st.diag[s, j] = 1.0
-            if w > 0.0 or slide > 0.0:
-                l2 = md.rest_length[s, j] * md.rest_length[s, j]
-                c = e.dot(e) - l2
-                res = ti.max(res, ti.abs(c) / l2)
-                st.rhs[s, j] = c
-                st.diag[s, j] = 4.0 * (e.dot(e) * w + slide)
-                if ti.static(fl.pins):
-                    st.diag[s, j] *= 1.0 + HELD_DAMPING
-            if j + 1 < n - 1:
-                st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * e.dot(st.x[s, j + 2] - st.x[s, j + 1])
+        res, turned = assemble_projection(s, n, shake, fl, md, st, dr)
+        switched = 0
+        if ti.static(fl.shake):
+            if shake and (turned or (it >= 1 and res > SHAKE_RATE * previous)):
+                # slow progress here is SHAKE's, not the rounding floor: no stall
+                shake = 0
+                switched = 1
+                assemble_projection(s, n, shake, fl, md, st, dr)
         if (res < sc.projection_tol or it >= sc.projection_iterations
-                or (it >= 1 and res < STALL_BELOW and res > 0.9 * previous)):
+                or (it >= 1 and not switched and res < STALL_BELOW and res > 0.9 * previous)):
             break
-        solve_inextensibility(s, n, fl, md, st, dr)
+        solve_inextensibility(s, n, shake, fl, md, st, dr)
         it += 1
     return it, res
 
@@ -842,7 +893,7 @@ def clear_bad(counters: Ints2):
 def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) -> None:
     """The projection stage alone, contacts on and pins off (head pose 0 -> 1): the initial
     contact solve."""
-    flags = stage_flags(plan, contacts=True, pins=False)
+    flags = stage_flags(plan, contacts=True, pins=False, shake=False)
     clear_bad(bundles.state.counters)
     run_stages(PROJECTION, PROJECTION + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
                bundles.drive(), bundles.contacts)

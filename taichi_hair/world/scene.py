@@ -109,6 +109,10 @@ def _host_distance(c, p):
 
 
 INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (solver/implicit.py)
+# the explicit step's inextensibility projection (solver/step.py): "fast" (Goldenthal et al.'s
+# fast projection: first order, it damps) or "shake" (constraint forces along the start-of-step
+# gradient: keeps an undamped swing's energy)
+PROJECTIONS = ("fast", "shake")
 # how node 0 is held (solver/step.py ROOT_CODES): "free" holds no node (a loose strand, or one
 # held only by pins and clips)
 ROOT_MODES = ("clamped", "pinned", "edge", "free")
@@ -124,7 +128,8 @@ class Scene:
     tools; hair_interaction: a HairInteraction or None; strand_contact: a StrandContact (strands
     that do not pass through each other: braids, ponytails, loose strands) or None; gravity [m/s^2]; drag [N s/m per metre
     of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
-    integrator: "explicit" (default) or "implicit" (see Simulator); root: how node 0 is held,
+    integrator: "explicit" (default) or "implicit" (see Simulator); projection: the explicit
+    step's projection, "fast" (default) or "shake" (see Simulator); root: how node 0 is held,
     "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator)."""
 
     groom: Groom
@@ -139,6 +144,7 @@ class Scene:
     drag: float = 5e-4
     twist: str = "quasistatic"
     integrator: str = "explicit"
+    projection: str = "fast"
     root: str = "clamped"
 
     def __post_init__(self):
@@ -147,7 +153,8 @@ class Scene:
         check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
                             hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
-                            integrator=self.integrator, strand_contact=self.strand_contact)
+                            integrator=self.integrator, strand_contact=self.strand_contact,
+                            projection=self.projection)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
@@ -160,15 +167,20 @@ class Scene:
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist,
                 "integrator": self.integrator, "strand_contact": self.strand_contact,
-                "root": self.root}
+                "root": self.root, "projection": self.projection}
 
 
 def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
-                        integrator="explicit", strand_contact=None):
+                        integrator="explicit", strand_contact=None, projection="fast"):
     """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
     parameter and what it allows. motion_name: what the caller calls the head motion."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    if projection not in PROJECTIONS:
+        raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
+    if projection == "shake" and integrator == "implicit":
+        raise ValueError("projection='shake' is the explicit step's projection: it runs with "
+                         "integrator='explicit' (the implicit step keeps energy by itself)")
     if not isinstance(groom, Groom):
         raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
     if twist not in TWIST_MODES:
