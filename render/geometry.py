@@ -126,8 +126,10 @@ class Hair:
         invert = self.material is None
 
         def colour_terms(c):
+            # float32 before broadcasting: the per-vertex copies below then convert nothing
             lin = _linear_colours(c)
-            return np.concatenate([lin, sigma_from_colour(lin, beta_n)], axis=-1) if invert else lin
+            terms = np.concatenate([lin, sigma_from_colour(lin, beta_n)], axis=-1) if invert else lin
+            return terms.astype(np.float32)
 
         terms = _per_vertex("colours", self.colours, counts, (3,), convert=colour_terms)
         linear, sigma = terms[:, :3], (terms[:, 3:] if invert else None)
@@ -138,17 +140,18 @@ class Hair:
             raise ValueError(f"opacity must be in (0, 1], got {self.opacity}")
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         ends = starts + counts - 1
-        idx = np.arange(len(x))
-        prev, nxt = idx - 1, idx + 1
-        prev[starts], nxt[ends] = starts, ends
+        idx = np.arange(len(x), dtype=np.int32)   # the renderer's index type, built in it
+        neighbours = np.empty((len(x), 2), dtype=np.int32)
+        neighbours[:, 0], neighbours[:, 1] = idx - 1, idx + 1
+        neighbours[starts, 0], neighbours[ends, 1] = starts, ends
         is_last = np.zeros(len(x), dtype=bool)
         is_last[ends] = True
         set_ = lambda n, v: object.__setattr__(self, n, v)
         set_("vertices", x.astype(np.float32))
         set_("vertex_colours", linear.astype(np.float32))
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
-        set_("segments", idx[~is_last].astype(np.int32))
-        set_("neighbours", np.stack([prev, nxt], axis=1).astype(np.int32))
+        set_("segments", idx[~is_last])
+        set_("neighbours", neighbours)
         set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
         self._set_optics(counts, linear, sigma)
         # derived once and never changed: read-only, so the renderer may keep device copies
