@@ -29,7 +29,7 @@ def _strands(points) -> tuple[np.ndarray, np.ndarray]:
     after another (V, 3), vertices per strand (S,) int64)."""
     if isinstance(points, np.ndarray) and points.ndim == 3:
         # one block already: checked and reshaped whole, not gathered strand by strand (a
-        # frame of 20k strands spent ~10 ms on that)
+        # frame of 20k x 31 vertices spent ~6 ms on that)
         if len(points) == 0:
             raise ValueError("points must hold at least one strand, got none")
         if points.shape[1] < 2 or points.shape[2] != 3:

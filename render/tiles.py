@@ -5,8 +5,9 @@ footprint touches and, within a tile, into one of N_BINS depth bins spanning the
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
 tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
 first vertex; each bin just before the walk reaches it, so a tile that turns opaque leaves the
-rest unsorted), walks them front to back (reading each segment's ends one iteration ahead:
-those reads are cache misses) and blends each segment's fragments into the tile's pixels
+rest unsorted), walks them front to back (the segments' vertex data are cache misses: they
+are requested 8 entries at a time ahead of the walk, `request_vertices`, and each segment's
+ends read one iteration ahead) and blends each segment's fragments into the tile's pixels
 front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
 be an atomic add):
 
