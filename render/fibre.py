@@ -313,9 +313,45 @@ def fexp(x: f32) -> f32:
     xc = ti.math.clamp(x, f32(-87.3), f32(88.3))
     k = ti.floor(xc * f32(1.4426950408889634) + f32(0.5))
     r = xc - k * f32(0.693145751953125) - k * f32(1.428606765330187e-06)   # |r| <= ln2 / 2
-    p = f32(1.0) + r * (f32(1.0) + r * (f32(0.5) + r * (f32(1.0 / 6.0) + r * (
-        f32(1.0 / 24.0) + r * (f32(1.0 / 120.0) + r * f32(1.0 / 720.0))))))
+    # the degree-6 Taylor polynomial in Estrin's form: about half the dependent operations of
+    # Horner's (shading is bound by the latency of its chains of exponentials)
+    r2 = r * r
+    p = ((f32(1.0) + r) + r2 * (f32(0.5) + r * f32(1.0 / 6.0))
+         + (r2 * r2) * ((f32(1.0 / 24.0) + r * f32(1.0 / 120.0)) + r2 * f32(1.0 / 720.0)))
     return p * ti.bit_cast((ti.cast(k, ti.i32) + 127) << 23, f32)
+
+
+@ti.func
+def asin_series(s: f32, z: f32) -> f32:
+    """asin(s) for |s| <= 1/2, z = s^2: Cephes' minimax polynomial (relative error ~2e-7)."""
+    p = ((((f32(4.2163199048e-2) * z + f32(2.4181311049e-2)) * z + f32(4.5470025998e-2)) * z
+          + f32(7.4953002686e-2)) * z + f32(1.6666752422e-1))
+    return s + s * z * p
+
+
+@ti.func
+def fasin(x: f32) -> f32:
+    """asin(x) in float32, inline and branch-free (x in [-1, 1]): libm's asinf is a call, and
+    each call spills every vector register of the shading loop. Above |x| = 1/2,
+    asin|x| = pi/2 - 2 asin(sqrt((1 - |x|) / 2))."""
+    a = ti.abs(x)
+    big = a > f32(0.5)
+    z = ti.select(big, f32(0.5) * (f32(1.0) - a), a * a)
+    r = asin_series(ti.select(big, ti.sqrt(z), a), z)
+    r = ti.select(big, f32(math.pi / 2) - f32(2.0) * r, r)
+    return ti.select(x < f32(0.0), -r, r)
+
+
+@ti.func
+def facos(x: f32) -> f32:
+    """acos(x) in float32, inline and branch-free (x in [-1, 1]; see `fasin`): above |x| =
+    1/2 from the half angle, acos x = 2 asin(sqrt((1 - x) / 2)) (x > 0) or pi minus that of
+    -x, so values near 0 and pi keep their relative accuracy; else pi/2 - asin x."""
+    big = ti.abs(x) > f32(0.5)
+    z = ti.select(big, f32(0.5) * (f32(1.0) - ti.abs(x)), x * x)
+    r = asin_series(ti.select(big, ti.sqrt(z), x), z)
+    return ti.select(big, ti.select(x > f32(0.0), f32(2.0) * r, f32(math.pi) - f32(2.0) * r),
+                     f32(math.pi / 2) - r)
 
 
 @ti.func
@@ -350,14 +386,13 @@ def variance_constant(v: f32) -> f32:
 def m_lobe_c(sin_i: f32, cos_i: f32, sin_o: f32, cos_o: f32, inv_v: f32, c_v: f32) -> f32:
     """`m_lobe` with 1 / v and c_v = `variance_constant(v)` given (they depend on the fibre
     alone): M = I0(a) exp(-b - c_v), a = cos_i cos_o / v, b = sin_i sin_o / v; below a = 12 the
-    I0 series multiplies the exponential (no logarithm), above it the asymptote's logarithm
-    joins the exponent."""
+    I0 series multiplies the exponential, above it the asymptote I0(a) ~ e^(a + 1/(8a)) /
+    sqrt(2 pi a) does (no logarithm: libm's logf is a call)."""
     a = cos_i * cos_o * inv_v
     b = sin_i * sin_o * inv_v
     r = f32(0.0)
     if a > 12.0:
-        r = fexp(a + f32(0.5) * (f32(-_LOG_2PI) - ti.log(a) + f32(1.0) / (f32(8.0) * a))
-                   - b - c_v)
+        r = fexp(a + f32(1.0) / (f32(8.0) * a) - b - c_v) * ti.rsqrt(f32(2.0 * math.pi) * a)
     else:
         val, x2i = f32(0.0), f32(1.0)
         for i in ti.static(range(16)):
@@ -444,7 +479,7 @@ def fibre_view(t: vec3f, v: vec3f, us: vec3f, shifts: ti.template(), atab: ti.te
     and TRT (sin, cos each), the albedo and the TRRT+ attenuation A_3 per channel."""
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
     cos_o = ti.sqrt(ti.max(f32(1.0) - sin_o * sin_o, f32(0.0)))
-    ut = ti.min(ti.asin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
+    ut = ti.min(fasin(ti.abs(sin_o)), f32(THETA_MAX)) * f32((N_THETA - 1) / THETA_MAX)
     tilt = vec6f(sin_o * shifts[1] - cos_o * shifts[0],
                  ti.abs(cos_o * shifts[1] + sin_o * shifts[0]),
                  sin_o * shifts[3] + cos_o * shifts[2],
@@ -455,7 +490,7 @@ def fibre_view(t: vec3f, v: vec3f, us: vec3f, shifts: ti.template(), atab: ti.te
     for c in ti.static(range(3)):
         a3[c] = a_lookup(atab, 1, ut, us[c])
         albedo[c] = a_lookup(atab, 0, ut, us[c])
-    return vec4f(sin_o, cos_o, ut, ti.asin(sin_o)), tilt, albedo, a3
+    return vec4f(sin_o, cos_o, ut, fasin(sin_o)), tilt, albedo, a3
 
 
 @ti.func
@@ -470,7 +505,7 @@ def fibre_light(t: vec3f, l: vec3f, v: vec3f, vo: vec4f, tilt: vec6f, a3: vec3f,
     cphi = f32(1.0)
     if den > 1e-12:
         cphi = ti.math.clamp(lp.dot(vp) / den, f32(-1.0), f32(1.0))
-    up = ti.acos(cphi) * f32((N_PHI - 1) / math.pi)
+    up = facos(cphi) * f32((N_PHI - 1) / math.pi)
     inv_v0 = f32(1.0) / v0
     m_r = m_lobe_c(sin_i, cos_i, tilt[0], tilt[1], inv_v0, cv[0])
     m_tt = m_lobe_c(sin_i, cos_i, tilt[2], tilt[3], f32(4.0) * inv_v0, cv[1])
@@ -573,7 +608,7 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     v0 = lobe_variance(beta_m)
     us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
     bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, alpha, dtab)
-    theta_o = ti.asin(ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0)))
+    theta_o = fasin(ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0)))
     return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af,
                              theta_o)
 
@@ -613,7 +648,7 @@ def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: v
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))
-    theta_i = ti.asin(sin_i)
+    theta_i = fasin(sin_i)
     direct = fexp(-n) * vis
     back_w = f32(1.0) - fexp(-terms[2])
     lp, vp = l - sin_i * t, v - sin_o * t

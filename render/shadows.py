@@ -305,14 +305,17 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     enabled = settings.enabled and bool(parts)
     r = settings.resolution if enabled else 16
     layers = settings.layers
-    z0 = buffer("shadow_z0", f32, (r, r))
-    opacity = buffer("shadow_opacity", f32, (r, r, layers))
-    fixed = buffer("shadow_opacity_fixed", ti.i64, (r, r, layers))
-    mesh_key = buffer("shadow_mesh_key", ti.i64, (r, r))
+    # a light without shadows gets small maps of its own: sharing the names with the shadowed
+    # lights' maps would reallocate those (tens of MB) at every change between the two
+    name = "shadow" if enabled else "shadow_off"
+    z0 = buffer(f"{name}_z0", f32, (r, r))
+    opacity = buffer(f"{name}_opacity", f32, (r, r, layers))
+    fixed = buffer(f"{name}_opacity_fixed", ti.i64, (r, r, layers))
+    mesh_key = buffer(f"{name}_mesh_key", ti.i64, (r, r))
     clear_shadow(z0, opacity, fixed)
     clear_keys_2d(mesh_key)
     if not enabled:
-        bounds = upload("shadow_bounds", settings.bounds(1.0), f32)
+        bounds = upload(f"{name}_bounds", settings.bounds(1.0), f32)
         return ShadowMap(np.eye(4, dtype=np.float32), np.array([1, 0, 0, 1], np.float32), z0,
                          opacity, bounds, mesh_key, np.zeros(4, np.float32))
     centre, radius = _scene_sphere(parts)

@@ -5,8 +5,9 @@ footprint touches and, within a tile, into one of N_BINS depth bins spanning the
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
 tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
 first vertex; each bin just before the walk reaches it, so a tile that turns opaque leaves the
-rest unsorted), walks them front to back (reading each segment's ends one iteration ahead:
-those reads are cache misses) and blends each segment's fragments into the tile's pixels
+rest unsorted), walks them front to back (the segments' vertex data are cache misses: they
+are requested 8 entries at a time ahead of the walk, `request_vertices`, and each segment's
+ends read one iteration ahead) and blends each segment's fragments into the tile's pixels
 front to back, with plain stores (the tile is its thread's alone; `+=` on an ndarray would
 be an atomic add):
 
@@ -35,6 +36,8 @@ OPAQUE = 1e-3
 CULL_HIDDEN = True
 # entries per segment placed by the rank the counting pass kept (the rest through an atomic)
 RANKED = 2
+# segment-tile entries whose vertex data the compositor requests together (`request_vertices`)
+PREFETCH = 8
 _GAPS = (1750, 701, 301, 132, 57, 23, 10, 4, 1)
 
 
@@ -237,10 +240,12 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                     mesh_near: ti.types.ndarray(dtype=f32, ndim=1),
                     base: ti.types.ndarray(dtype=vec3f, ndim=2),
                     out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
-                    out_alpha: ti.types.ndarray(dtype=f32, ndim=2)):
+                    out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
+                    probes: ti.types.ndarray(dtype=ti.i32, ndim=1)):
     """Blend each tile's segments front to back over `base`: out_rgb linear radiance,
     out_alpha hair opacity, (H, W). One thread per tile; out_alpha holds the transmittance
-    while the tile is blended."""
+    while the tile is blended. probes[tile]: the sum of `request_vertices` (kept only so that
+    its loads are not optimised away)."""
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     ti.loop_config(block_dim=1)
@@ -263,6 +268,7 @@ def composite_tiles(width: ti.i32, height: ti.i32,
             sorted_end = offsets[tile * N_BINS + next_bin + 1]
             sort_bin(offsets[tile * N_BINS + next_bin], sorted_end, items)
             next_bin += 1
+        prefetched = request_vertices(k0, ti.min(k0 + PREFETCH, k1), items, screen, width_px, rgba)
         zero = vec4f(0.0, 0.0, 0.0, 0.0)
         a, b, wa, wb, ca, cb = zero, zero, f32(0.0), f32(0.0), zero, zero
         if k0 < k1:
@@ -270,7 +276,11 @@ def composite_tiles(width: ti.i32, height: ti.i32,
             a, b, wa, wb = screen[j], screen[j + 1], width_px[j], width_px[j + 1]
             ca, cb = rgba[j], rgba[j + 1]
         k = k0
+        probe = 0
         while k < k1 and n_open > 0:
+            if (k - k0) % PREFETCH == 0:
+                probe += request_vertices(ti.min(k + PREFETCH, k1), ti.min(k + 2 * PREFETCH, k1),
+                                          items, screen, width_px, rgba)
             kn = ti.min(k + 1, k1 - 1)
             while sorted_end <= kn and next_bin < N_BINS:
                 sorted_end = offsets[tile * N_BINS + next_bin + 1]
@@ -287,11 +297,28 @@ def composite_tiles(width: ti.i32, height: ti.i32,
                                     mesh_key, out_rgb, out_alpha)
             a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
             k += 1
+        probes[tile] = prefetched + probe
         for py in range(ty0, ty1 + 1):
             for px in range(tx0, tx1 + 1):
                 t = out_alpha[py, px]
                 out_rgb[py, px] = out_rgb[py, px] + t * base[py, px]
                 out_alpha[py, px] = f32(1.0) - t
+
+
+@ti.func
+def request_vertices(k0: ti.i32, k1: ti.i32, items: ti.template(), screen: ti.template(),
+                     width_px: ti.template(), rgba: ti.template()) -> ti.i32:
+    """Load the first vertex's screen position, width and colour of the entries items[k0:k1]
+    (the second vertex shares their cache lines mostly) and return a sum of their bits: a
+    software prefetch. The entries' vertices lie anywhere in the hair's arrays, so each read
+    misses the caches; loaded one entry at a time the core waits out each miss in turn,
+    requested together the misses overlap."""
+    bits = 0
+    for q in range(k0, k1):
+        j = vertex_of(items[q])
+        bits += (ti.bit_cast(screen[j][0], ti.i32) + ti.bit_cast(width_px[j], ti.i32)
+                 + ti.bit_cast(rgba[j][0], ti.i32))
+    return bits
 
 
 @ti.func
@@ -407,9 +434,11 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
 
 def composite_binned(bins: dict, hd: dict, mesh_key, base, out_rgb, out_alpha) -> None:
     """Blend the binned, shaded hair front to back per tile over `base` (H, W)."""
+    from .runtime import buffer
     height, width = base.shape
     composite_tiles(width, height, bins["offsets"], bins["items"], hd["screen"],
-                    hd["width_px"], hd["rgba"], mesh_key, bins["mesh_near"], base, out_rgb, out_alpha)
+                    hd["width_px"], hd["rgba"], mesh_key, bins["mesh_near"], base, out_rgb, out_alpha,
+                    buffer("tile_probes", ti.i32, (bins["tiles"],)))
 
 
 def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
