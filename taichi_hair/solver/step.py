@@ -687,7 +687,7 @@ def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: 
 
 
 @ti.kernel
-def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Points2, root_t: Vec3s1, root_u: Vec3s1):
+def place_roots(head: Vec3s2, root_frame: Vec3s2, x: ti.types.ndarray(ndim=2), root_t: Vec3s1, root_u: Vec3s1):
     """Root nodes and root reference frames at head pose 1. One thread per strand."""
     for s in range(x.shape[0]):
         strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
