@@ -59,9 +59,9 @@ class Simulator:
         choice), "kmoch" (Kmoch et al.'s rule for elliptic hair: cheaper, but not an energy
         minimum, so it can feed energy in; see the accuracy and stability reports) or "none"
         (material angles stay as they are).
-    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
-        in float32 the rounding floor of the scene's coordinates if larger, see
-        `default_projection_tol`); projection_iterations caps it.
+    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6 in
+        both precisions: positions are float64, see `default_projection_tol`);
+        projection_iterations caps it.
     twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ) ending the quasistatic solve
         (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
     root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
@@ -632,7 +632,7 @@ def default_projection_tol(groom: Groom) -> float:
     in float32 |e|^2 - |ebar|^2 resolves to a few eps of the edge itself (~2.4e-7), whatever
     the coordinates' magnitude. (With float32 positions the floor was ~2 eps X / ds, and a
     residual left at such a tol was an edge stretched by tol ds / 2 that the next step removed
-    as a velocity kick: docs/model.md, "Velocities".)"""
+    as a velocity kick: docs/model.md, "Positions and velocities in float32".)"""
     return 1e-6
 
 

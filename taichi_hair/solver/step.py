@@ -429,10 +429,10 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
 
 @ti.func
 def strand_velocities(s, sc, md: ti.template(), st: ti.template()):
-    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx:
-    x itself is rounded to its coordinates' precision at every update, and in float32 with small
-    substeps (eps |x| / h ~ mm/s at 1 mm segments) that rounding, read back as velocity, would
-    heat the hair (docs/model.md, "Velocities"). Held nodes take the difference of positions.
+    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx (a
+    difference kept in the precision's float, exact to the displacement's own precision; see
+    docs/model.md, "Positions and velocities in float32"). Held nodes take the difference of
+    positions (float64).
     Returns 1 if a node is non-finite or faster than max_speed, else 0."""
     bad = 0
     inv_h = 1.0 / sc.h
