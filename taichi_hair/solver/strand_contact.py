@@ -483,9 +483,14 @@ class ContactGrid:
         return self._ones
 
     def _pass(self, mode, with_friction, x, x_prev, inv_mass, dx=None):
-        """One pass (grid rebuilt from x); resolving, the corrections go into x and dx."""
+        """One pass (grid rebuilt from x); resolving, the corrections go into x and dx (measuring,
+        dx is unused: a scratch array of the process's float, as positions are float64)."""
+        if dx is None:
+            if getattr(self, "_unused_dx", None) is None:
+                self._unused_dx = arrays.vectors(3, (self.S, self.N))
+            dx = self._unused_dx
         _contact_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
-                      x, x_prev, inv_mass, x if dx is None else dx, self.seg_cell, self.seg_bucket,
+                      x, x_prev, inv_mass, dx, self.seg_cell, self.seg_bucket,
                       self.bucket_count, self.bucket_start, self.cursor, self.sorted_seg, self.T - 1,
                       self.friction, self.params, self.counters, self.delta, self.hits, self.record)
         params = self.params.to_numpy()
