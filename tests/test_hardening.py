@@ -355,14 +355,47 @@ def test_float32_fine_hair_keeps_its_energy(tmp_path):
     """Undamped float32 strands with tiny substeps gained energy from rounding read back as
     velocity ((x - x_prev) / h) and from the projection's loose float32 tolerance: 1 mm segments
     (61 substeps) +21 % of the energy in play in 0.2 s, a tight elliptic curl under Kmoch's rule
-    (196 substeps) +6.6 %. Run in float32 (a worker process), judged by the stability report's
-    own rule (ENERGY_RISE_FAIL)."""
+    (196 substeps) +6.6 %; and from the rounding of float32 positions themselves: E 1e10 at 1 mm
+    segments (222 substeps of a 2 ms step) +2.0 %. Run in float32 (a worker process), judged by
+    the stability report's own rule (ENERGY_RISE_FAIL)."""
     from taichi_hair.app import reports
     cases = [reports.StabilityCase(name="1 mm segments", segment=0.001),
              reports.StabilityCase(name="tight elliptic curl", curl_radius=0.005, segment=0.0025,
-                                   ellipticity=4.0, twist="kmoch")]
+                                   ellipticity=4.0, twist="kmoch"),
+             reports.StabilityCase(name="stiff, 1 mm segments, 2 ms", youngs_modulus=1e10, segment=0.001,
+                                   dt=2e-3)]
     result = reports.stability_report(False, tmp_path, cases=cases, duration=0.2)
     for row in result["cases"]:
         assert row["precision"] == "float32"
         assert row["status"] == "substepped", row["outcome"]
         assert row["energy_max_rise"] < reports.ENERGY_RISE_FAIL, row
+
+
+def test_float32_hair_far_from_the_origin_moves_as_at_the_origin():
+    """float32 positions 100 m from the origin carry rounding of 8e-6 m, 8e-4 of a 1 cm edge:
+    the projection could not resolve the lengths there and stiff modes heat. Positions are
+    float64 (arrays.Points2): the same swinging strand at the origin and 100 m away follows the
+    same path to float32's precision of the motion itself, and holds its lengths to 1e-6."""
+    script = textwrap.dedent("""
+        import json, numpy as np, taichi_hair as th
+        th.init(arch="cpu", precision="float32")
+        tips, residuals = [], []
+        for offset in (0.0, 100.0):
+            groom = th.Groom.straight(roots=[[offset, 0.0, 0.0]], directions=[[1.0, 0.0, 0.0]],
+                                      length=0.2, n_nodes=21)
+            sim = th.Simulator(groom, th.Material(), dt=1e-3)
+            sim.step(200)
+            x = sim.positions()[0]
+            tips.append((x[-1] - [offset, 0.0, 0.0]).tolist())
+            lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
+            residuals.append(float(np.abs(lengths ** 2 / 0.01 ** 2 - 1).max()))
+            assert sim.stats()["projection_tol"] == 1e-6
+        print(json.dumps({"tips": tips, "residuals": residuals}))
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    near, far = np.array(result["tips"])
+    print(f"\nfloat32 tip at the origin {near}, 100 m away {far} (relative), residuals {result['residuals']}")
+    assert np.linalg.norm(near - far) < 1e-4 * 0.2
+    assert max(result["residuals"]) < 2e-6

@@ -27,6 +27,12 @@ Vec3s3 = ti.types.ndarray(dtype=vec3, ndim=3)  # [S, N, k]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+# node positions are stored in float64 in both precisions: in float32 each update rounded a
+# position to eps |x| (3e-8 m at 0.3 m, whatever the segment), and stiff fine hair turned that
+# rounding into energy at every substep; edges are formed in float64 and rounded once,
+# relative to their own length (`edge`). docs/model.md, "Positions and velocities in float32"
+vec3d = ti.types.vector(3, ti.f64)
+Points2 = ti.types.ndarray(dtype=vec3d, ndim=2)  # [S, N] positions [m]
 # the implicit step's banded systems are factored in float64 in both precisions (a hair node's
 # mass and its bending stiffness over a large step differ by up to 1e7: float32 loses them)
 mat4d = ti.types.matrix(4, 4, ti.f64)
@@ -48,6 +54,24 @@ def ints(shape, value):
     a = ti.ndarray(ti.i32, shape)
     a.from_numpy(np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=np.int32), shape)))
     return a
+
+
+@ti.func
+def edge(x: ti.template(), s, i, j):
+    """x[s, j] - x[s, i] in the process's float (formed in the positions' float64) [m]."""
+    return ti.cast(x[s, j] - x[s, i], float)
+
+
+@ti.func
+def step_displacement(x: ti.template(), x_prev: ti.template(), s, i):
+    """x[s, i] - x_prev[s, i] in the process's float [m]."""
+    return ti.cast(x[s, i] - x_prev[s, i], float)
+
+
+@ti.func
+def point(x: ti.template(), s, i):
+    """x[s, i] in the process's float [m]."""
+    return ti.cast(x[s, i], float)
 
 
 def vectors(n, shape, value=None, dtype=float):
@@ -78,6 +102,7 @@ def np_float():
 def like(a):
     """A new ndarray with the same element type and shape as ndarray `a` (contents undefined)."""
     ensure_init()
+    dtype = ti.f64 if a.dtype == ti.f64 or getattr(a.dtype, "dtype", None) == ti.f64 else float
     if a.element_shape:
-        return ti.Vector.ndarray(a.element_shape[0], float, a.shape)
-    return ti.ndarray(float, a.shape)
+        return ti.Vector.ndarray(a.element_shape[0], dtype, a.shape)
+    return ti.ndarray(dtype, a.shape)

@@ -9,7 +9,7 @@ Material frame: m1 = cos(theta) u + sin(theta) v, m2 = -sin(theta) u + cos(theta
 
 import taichi as ti
 
-from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, vec3
+from .arrays import Ints1, Points2, Scalars2, Vec3s1, Vec3s2, edge, vec3
 
 
 @ti.func
@@ -51,17 +51,17 @@ def strand_frames(s, clamp: ti.template(), x: ti.template(), node_count: ti.temp
                   m2: ti.template(), kb: ti.template()):
     """Strand s's Bishop frames, material frames and curvature binormals (see update_frames)."""
     n = node_count[s]
-    t_prev = (x[s, 1] - x[s, 0]).normalized()
+    t_prev = (edge(x, s, 0, 1)).normalized()
     u = parallel_transport(root_u[s], root_t[s], t_prev)
     kb[s, 0] = vec3(0.0)
     if ti.static(clamp):  # node 0 bends between the clamp (root_t) and edge 0
-        kb[s, 0] = curvature_binormal(root_t[s], x[s, 1] - x[s, 0])
+        kb[s, 0] = curvature_binormal(root_t[s], edge(x, s, 0, 1))
     for j in range(n - 1):
-        e = x[s, j + 1] - x[s, j]
+        e = edge(x, s, j, j + 1)
         t = e.normalized()
         if j > 0:
             u = parallel_transport(u, t_prev, t)
-            kb[s, j] = curvature_binormal(x[s, j] - x[s, j - 1], e)
+            kb[s, j] = curvature_binormal(edge(x, s, j - 1, j), e)
         # re-orthonormalise so rounding cannot accumulate along long strands
         u = (u - u.dot(t) * t).normalized()
         v = t.cross(u)
@@ -73,7 +73,7 @@ def strand_frames(s, clamp: ti.template(), x: ti.template(), node_count: ti.temp
 
 
 @ti.kernel
-def update_frames(clamp: ti.template(), x: Vec3s2, node_count: Ints1, root_t: Vec3s1,
+def update_frames(clamp: ti.template(), x: Points2, node_count: Ints1, root_t: Vec3s1,
                   root_u: Vec3s1, theta: Scalars2, bishop_u: Vec3s2, bishop_v: Vec3s2, m1: Vec3s2,
                   m2: Vec3s2, kb: Vec3s2):
     """Bishop frames (u, v), material frames (m1, m2) of every edge [S, N-1] and curvature

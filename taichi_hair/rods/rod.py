@@ -18,7 +18,7 @@ and starts at node 1 as in plain DER.
 
 import taichi as ti
 
-from .arrays import Ints1, Scalars1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, vec2, vec3
+from .arrays import Ints1, Points2, Scalars1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, edge, vec2, vec3
 
 
 @ti.func
@@ -147,8 +147,8 @@ def node_edges(s, i, x: ti.template(), root_t: ti.template()):
     psi are scale-free in each edge, so a unit vector serves)."""
     e0 = root_t[s]
     if i >= 1:
-        e0 = x[s, i] - x[s, i - 1]
-    return e0, x[s, i + 1] - x[s, i]
+        e0 = edge(x, s, i - 1, i)
+    return e0, edge(x, s, i, i + 1)
 
 
 @ti.func
@@ -209,7 +209,7 @@ def strand_elastic_forces(s, clamp: ti.template(), x: ti.template(), node_count:
 
 
 @ti.kernel
-def elastic_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, kb: Vec3s2, m1: Vec3s2,
+def elastic_forces(clamp: ti.template(), x: Points2, node_count: Ints1, kb: Vec3s2, m1: Vec3s2,
                    m2: Vec3s2, root_t: Vec3s1, root_u: Vec3s1, rest_kappa: Vec4s2,
                    voronoi: Scalars2, stiffness: Vec4s1, force: Vec3s2):
     """force[s, i] = -dE/dx_i [N] with the material angles held fixed (holonomy term included).

@@ -131,7 +131,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
     edges = (s_count, n_max - 1)
     nodes = (s_count, n_max) if implicit else (1, 1)
     return RodState(
-        x=arrays.vectors(3, (s_count, n_max), groom.positions),
+        x=arrays.vectors(3, (s_count, n_max), groom.positions, dtype=ti.f64),
         v=arrays.vectors(3, (s_count, n_max)),
         theta=arrays.scalars(edges),
         bishop_u=arrays.vectors(3, edges), bishop_v=arrays.vectors(3, edges),
@@ -139,7 +139,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         kb=arrays.vectors(3, (s_count, n_max)),
         root_t=arrays.vectors(3, (s_count,), root_t), root_u=arrays.vectors(3, (s_count,), root_u),
         force=arrays.vectors(3, (s_count, n_max)),
-        x_prev=arrays.vectors(3, (s_count, n_max), groom.positions),
+        x_prev=arrays.vectors(3, (s_count, n_max), groom.positions, dtype=ti.f64),
         dx=arrays.vectors(3, (s_count, n_max)),
         scratch_edge=tuple(arrays.scalars(edges) for _ in range(3)),
         strand_scalar=arrays.scalars((s_count,)),

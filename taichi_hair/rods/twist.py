@@ -24,7 +24,7 @@ Two modes (docs/model.md, "Twist"):
 
 import taichi as ti
 
-from .arrays import Ints1, Scalars2, Vec3s1, Vec3s2, Vec3s3, Vec4s1, Vec4s2, vec2
+from .arrays import Ints1, Points2, Scalars2, Vec3s1, Vec3s2, Vec3s3, Vec4s1, Vec4s2, vec2
 from .frames import material_directors
 from .linalg import back_substitute
 from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
@@ -353,7 +353,7 @@ def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: t
 
 
 @ti.kernel
-def kmoch_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: Vec3s2,
+def kmoch_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
                  bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
                  rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
                  force: Vec3s2):
@@ -390,7 +390,7 @@ def strand_held_twist_forces(s, clamp: ti.template(), x: ti.template(), node_cou
 
 
 @ti.kernel
-def held_twist_forces(clamp: ti.template(), x: Vec3s2, node_count: Ints1, bishop_u: Vec3s2,
+def held_twist_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
                       bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
                       rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
                       clip: Vec3s3, force: Vec3s2):

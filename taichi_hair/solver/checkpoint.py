@@ -45,7 +45,7 @@ def load_state(sim, path) -> None:
         raise ValueError(f"{path}: state of {list(saved['shape'])} strands x nodes, this groom has {expected}")
     if not all(np.all(np.isfinite(saved[k])) for k in ("x", "v", "theta")):
         raise ValueError(f"{path}: the saved state has non-finite values")
-    sim.state.x.from_numpy(saved["x"].astype(arrays.np_float()))
+    sim.state.x.from_numpy(saved["x"].astype(np.float64))
     sim.state.v.from_numpy(saved["v"].astype(arrays.np_float()))
     sim.state.theta.from_numpy(saved["theta"].astype(arrays.np_float()))
     sim.time, sim.steps_taken = float(saved["time"]), int(saved["steps"])

@@ -3,6 +3,7 @@ projection (see step.strand_project), alternating with the inextensibility solve
 
 import taichi as ti
 
+from ..rods.arrays import point, step_displacement
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -71,7 +72,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     node's step displacement dx becomes x - x_prev. Returns the number of pushes."""
     pushes = 0
     x, x_prev, dx, head = ti.static(st.x, st.x_prev, st.dx, dr.head)  # aliases
-    root = x[s, 0]
+    root = point(x, s, 0)
     for c in range(n_analytic):
         on_head = co.params[c][3] > 0.5
         root_local, _ = collider_frame(on_head, head, now, prev, root, root)
@@ -80,7 +81,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
         if d_root >= -co.params[c][1]:  # see root_keeps_collider
             for i in range(md.node_count[s]):
                 if md.inv_mass[s, i] > 0.0:
-                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
                     d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1],
                                              co.params[c][0], local)
                     if d < co.params[c][1]:
@@ -88,7 +89,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
-                        dx[s, i] = x[s, i] - x_prev[s, i]  # placed, not moved by: see strand_velocities
+                        dx[s, i] = step_displacement(x, x_prev, s, i)  # placed, not moved by: see strand_velocities
                         pushes += 1
     if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
@@ -98,14 +99,14 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
         if d_root >= -co.sdf_meta[1][1]:  # see root_keeps_collider
             for i in range(md.node_count[s]):
                 if md.inv_mass[s, i] > 0.0:
-                    local, local_prev = collider_frame(on_head, head, now, prev, x[s, i], x_prev[s, i])
+                    local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
                     d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
                     if d < co.sdf_meta[1][1]:
                         local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
                         x[s, i] = local
                         if on_head:
                             x[s, i] = from_head(head, now, local)
-                        dx[s, i] = x[s, i] - x_prev[s, i]
+                        dx[s, i] = step_displacement(x, x_prev, s, i)
                         pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -114,12 +115,12 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 centre = dr.tool_points[tool_now, k]
                 for i in range(md.node_count[s]):
                     if md.inv_mass[s, i] > 0.0:
-                        local = x[s, i] - centre
-                        local_prev = x_prev[s, i] - dr.tool_points[tool_prev, k]
+                        local = point(x, s, i) - centre
+                        local_prev = point(x_prev, s, i) - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
                         if d < dr.tools[k][2]:
                             x[s, i] = centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
                                                                dr.tools[k][3])
-                            dx[s, i] = x[s, i] - x_prev[s, i]
+                            dx[s, i] = step_displacement(x, x_prev, s, i)
                             pushes += 1
     return pushes

@@ -25,7 +25,7 @@ root placement and pins set them after.
 
 import taichi as ti
 
-from ..rods.arrays import mat4d, vec3, vec4d
+from ..rods.arrays import edge, mat4d, point, step_displacement, vec3, vec4d
 from ..rods.linalg import block_pentadiagonal_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.rod import edge_directors, first_node, node_edges
@@ -112,7 +112,7 @@ def assemble_tension(s, n, scale, load_history, md: ti.template(), st: ti.templa
     for j in range(n - 1):
         tau = st.tension[s, j]
         if tau > 0.0:
-            e = ti.cast(st.x[s, j + 1] - st.x[s, j], ti.f64)
+            e = st.x[s, j + 1] - st.x[s, j]  # float64 positions (arrays.Points2)
             length = e.norm()
             t = e / length
             k = (ti.cast(tau, ti.f64) / length) * (ti.Matrix.identity(ti.f64, 3) - t.outer_product(t))
@@ -140,7 +140,7 @@ def assemble_grab_stiffness(s, k, scale, load_history, md: ti.template(), st: ti
     100 N/m grab on a 6.5e-9 kg node: 16 us)."""
     for i in range(md.node_count[s]):
         if md.inv_mass[s, i] > 0.0:
-            p = st.x[s, i]
+            p = point(st.x, s, i)
             kg = grab_stiffness(dr.tools, dr.tool_points, k, p)
             if load_history:
                 st.dx[s, i] += ti.cast(kg @ ti.cast(st.history[s, i, HIST_DX], ti.f64), float)
@@ -183,7 +183,7 @@ def assemble_constraints(s, n, history, inv_step, md: ti.template(), st: ti.temp
     kg; unscaled, float32 pivots lose every digit). Held nodes' velocities are not unknowns;
     an edge held at both ends gets an identity row."""
     for i in range(1, n):
-        e = st.x[s, i] - st.x[s, i - 1]
+        e = edge(st.x, s, i - 1, i)
         length = e.norm()
         c = md.mass[s, i]
         t = c * e / length
@@ -298,7 +298,7 @@ def length_residual(s, md: ti.template(), st: ti.template()):
     for j in range(md.node_count[s] - 1):
         if md.inv_mass[s, j] + md.inv_mass[s, j + 1] > 0.0:
             rest = md.rest_length[s, j]
-            worst = ti.max(worst, ti.abs((st.x[s, j + 1] - st.x[s, j]).norm() - rest) / rest)
+            worst = ti.max(worst, ti.abs((edge(st.x, s, j, j + 1)).norm() - rest) / rest)
     return worst
 
 
@@ -313,7 +313,7 @@ def strand_implicit_velocities(s, sc, md: ti.template(), st: ti.template()):
     for i in range(md.node_count[s]):
         disp = st.dx[s, i]
         if md.inv_mass[s, i] == 0.0:
-            disp = st.x[s, i] - st.x_prev[s, i]
+            disp = step_displacement(st.x, st.x_prev, s, i)
         vel = (3.0 * disp - st.history[s, i, HIST_DX]) * inv_2h
         st.v[s, i] = vel
         st.history[s, i, HIST_DX] = disp

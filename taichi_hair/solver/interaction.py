@@ -13,7 +13,7 @@ import numpy as np
 import taichi as ti
 
 from ..rods import arrays
-from ..rods.arrays import Ints1, Scalars2, Scalars3, Vec3s1, Vec3s2, vec3
+from ..rods.arrays import Ints1, Points2, Scalars2, Scalars3, Vec3s1, Vec3s2, point, vec3
 from ..rods.linalg import corner_factors, corner_signs, grid_cell
 from ..world.forces import HairInteraction
 
@@ -40,7 +40,7 @@ def clear_grid(density: Scalars3, momentum: Vec3s3):
 
 
 @ti.kernel
-def splat(node_count: Ints1, mass: Scalars2, x: Vec3s2, v: Vec3s2, frame: Vec3s1,
+def splat(node_count: Ints1, mass: Scalars2, x: Points2, v: Vec3s2, frame: Vec3s1,
           density: Scalars3, momentum: Vec3s3):
     """density += m w / cell volume, momentum += m v w / cell volume (trilinear w), frame =
     (origin [m], (spacing [m], 0, 0)). One thread per node."""
@@ -48,7 +48,7 @@ def splat(node_count: Ints1, mass: Scalars2, x: Vec3s2, v: Vec3s2, frame: Vec3s1
     inv_volume = 1.0 / (spacing * spacing * spacing)
     for s, i in ti.ndrange(x.shape[0], x.shape[1]):
         if i < node_count[s]:
-            base, f = cell_weights(x[s, i], frame[0], spacing)
+            base, f = cell_weights(point(x, s, i), frame[0], spacing)
             for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
                 factors = corner_factors(c, f)
                 w = factors[0] * factors[1] * factors[2]
@@ -59,7 +59,7 @@ def splat(node_count: Ints1, mass: Scalars2, x: Vec3s2, v: Vec3s2, frame: Vec3s1
 
 
 @ti.kernel
-def apply_interaction(node_count: Ints1, inv_mass: Scalars2, mass: Scalars2, x: Vec3s2, v: Vec3s2,
+def apply_interaction(node_count: Ints1, inv_mass: Scalars2, mass: Scalars2, x: Points2, v: Vec3s2,
                       frame: Vec3s1, density: Scalars3, momentum: Vec3s3, max_density: float,
                       repulsion: float, blend: float, force: Vec3s2):
     """Velocity smoothing toward the grid velocity (fraction `blend` this step) and the
@@ -67,7 +67,7 @@ def apply_interaction(node_count: Ints1, inv_mass: Scalars2, mass: Scalars2, x: 
     spacing = frame[1][0]
     for s, i in ti.ndrange(x.shape[0], x.shape[1]):
         if i < node_count[s] and inv_mass[s, i] > 0.0:
-            base, f = cell_weights(x[s, i], frame[0], spacing)
+            base, f = cell_weights(point(x, s, i), frame[0], spacing)
             rho = 0.0
             p = vec3(0.0)
             grad = vec3(0.0)

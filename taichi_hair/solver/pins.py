@@ -71,7 +71,7 @@ def strand_place_pins(s, fraction, clips: ti.template(), node_count: ti.template
             if ti.static(clips):
                 b = clip[s, i, 2]
                 if b.dot(b) > 0.0:
-                    p += b * (b.dot(x[s, i] - p) / b.dot(b))
+                    p += b * (b.dot(arrays.point(x, s, i) - p) / b.dot(b))
             x[s, i] = p
 
 
@@ -111,7 +111,7 @@ def strand_carry_root_frame(s, x: ti.template(), root_t: ti.template(), root_u: 
     first edge), with the same operations as frames.strand_frames, so u^0 is unchanged. (It is
     recomputed, not read back from bishop_u[s, 0]: inside the fused kernel's step loop Taichi
     1.7 served that read from a value cached before the frames stage wrote it.)"""
-    t = (x[s, 1] - x[s, 0]).normalized()
+    t = arrays.edge(x, s, 0, 1).normalized()
     u = parallel_transport(root_u[s], root_t[s], t)
     root_u[s] = (u - u.dot(t) * t).normalized()
     root_t[s] = t

@@ -59,9 +59,9 @@ class Simulator:
         choice), "kmoch" (Kmoch et al.'s rule for elliptic hair: cheaper, but not an energy
         minimum, so it can feed energy in; see the accuracy and stability reports) or "none"
         (material angles stay as they are).
-    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6, or
-        in float32 the rounding floor of the scene's coordinates if larger, see
-        `default_projection_tol`); projection_iterations caps it.
+    projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6 in
+        both precisions: positions are float64, see `default_projection_tol`);
+        projection_iterations caps it.
     twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ) ending the quasistatic solve
         (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
     root_motion: optional callable t [s] -> (R [3, 3], t [3]) moving the head; otherwise use
@@ -199,7 +199,7 @@ class Simulator:
         """Put the whole groom rigidly at the head's pose (used for the initial pose only)."""
         self._head = self._head_prev = (rotation, translation)
         x = self.groom.positions @ rotation.T + translation
-        self.state.x.from_numpy(x.astype(arrays.np_float()))
+        self.state.x.from_numpy(x.astype(np.float64))
         self._orient_roots(reference=True)
 
     def _orient_roots(self, reference=None):
@@ -628,20 +628,12 @@ class Simulator:
 
 
 def default_projection_tol(groom: Groom) -> float:
-    """1e-6, raised in float32 to what its rounding permits: coordinates of magnitude X carry
-    errors of about eps X, so |e|^2 - |ebar|^2 cannot resolve below ~ 2 eps X / ds relative
-    (X covers where the hair can reach from its roots); taken with a factor 2 of margin. Not
-    more: a residual left at tol is an edge stretched by tol ds / 2 that the next step removes
-    as a velocity kick of that size over the substep, which heats fine, stiff hair (8 eps X / ds
-    and above: +5 % of the energy in play at 1 mm segments; docs/model.md, "Velocities"). Not
-    less: an undamped spring grab at 0.5 m/s, which the looser projection's slack steadied,
-    diverges at 2 eps X / ds."""
-    if precision() == "float64":
-        return 1e-6
-    reach = np.abs(groom.positions).max() + groom.lengths().max()
-    shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
-                   for s in range(groom.n_strands))
-    return max(1e-6, 4 * float(np.finfo(np.float32).eps) * reach / shortest)
+    """1e-6 in both precisions: positions are stored in float64 and edges formed there, so even
+    in float32 |e|^2 - |ebar|^2 resolves to a few eps of the edge itself (~2.4e-7), whatever
+    the coordinates' magnitude. (With float32 positions the floor was ~2 eps X / ds, and a
+    residual left at such a tol was an edge stretched by tol ds / 2 that the next step removed
+    as a velocity kick: docs/model.md, "Positions and velocities in float32".)"""
+    return 1e-6
 
 
 def _max_air_speed(wind) -> float:

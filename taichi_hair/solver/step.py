@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass
 
 import taichi as ti
 
-from ..rods.arrays import (Ints1, Ints2, Mat4d3, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2, Vec4s1,
-                           Vec4s2, vec3)
+from ..rods.arrays import (Ints1, Ints2, Mat4d3, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2,
+                           Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
@@ -108,7 +108,7 @@ ModelArgs = ti.types.argpack(
     node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
     stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
 StateArgs = ti.types.argpack(
-    x=Vec3s2, v=Vec3s2, x_prev=Vec3s2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
+    x=Points2, v=Vec3s2, x_prev=Points2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
     diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
     tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
@@ -248,10 +248,10 @@ def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: t
     for i in range(md.node_count[s]):
         air = dr.loads[1]
         if ti.static(fl.wind_field):
-            air = air_velocity(dr.loads[1], dr.gusts, dr.modes, t, st.x[s, i])
+            air = air_velocity(dr.loads[1], dr.gusts, dr.modes, t, point(st.x, s, i))
         f = md.mass[s, i] * dr.loads[0] - sc.drag * md.voronoi[s, i] * (st.v[s, i] - air)
         if ti.static(fl.touch):
-            f += grab_force(dr.tools, dr.tool_points, k, st.x[s, i])
+            f += grab_force(dr.tools, dr.tool_points, k, point(st.x, s, i))
         st.force[s, i] += f
 
 
@@ -307,10 +307,10 @@ def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
 def constraint_edge(s, j, shake, fl: ti.template(), st: ti.template()):
     """Edge j's direction in the constraint gradient G: its start-of-step vector under SHAKE
     while that converges (fl.shake and shake = 1), else its current one (the fast projection)."""
-    e = st.x[s, j + 1] - st.x[s, j]
+    e = edge(st.x, s, j, j + 1)
     if ti.static(fl.shake):
         if shake:
-            e = st.x_prev[s, j + 1] - st.x_prev[s, j]
+            e = edge(st.x_prev, s, j, j + 1)
     return e
 
 
@@ -360,7 +360,7 @@ def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: t
     turned = 0
     b = slider_vector(s, n, fl, dr)
     for j in range(n - 1):
-        e = st.x[s, j + 1] - st.x[s, j]
+        e = edge(st.x, s, j, j + 1)
         g = constraint_edge(s, j, shake, fl, st)
         w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
         slide = 0.0  # the slider's share (b . g)^2 of the edge before it
@@ -429,17 +429,17 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
 
 @ti.func
 def strand_velocities(s, sc, md: ti.template(), st: ti.template()):
-    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx:
-    x itself is rounded to its coordinates' precision at every update, and in float32 with small
-    substeps (eps |x| / h ~ mm/s at 1 mm segments) that rounding, read back as velocity, would
-    heat the hair (docs/model.md, "Velocities"). Held nodes take the difference of positions.
+    """v = (x - x_prev) / h, read for free nodes from the step's accumulated displacement dx (a
+    difference kept in the precision's float, exact to the displacement's own precision; see
+    docs/model.md, "Positions and velocities in float32"). Held nodes take the difference of
+    positions (float64).
     Returns 1 if a node is non-finite or faster than max_speed, else 0."""
     bad = 0
     inv_h = 1.0 / sc.h
     for i in range(md.node_count[s]):
         vel = st.dx[s, i] * inv_h
         if md.inv_mass[s, i] == 0.0:
-            vel = (st.x[s, i] - st.x_prev[s, i]) * inv_h
+            vel = step_displacement(st.x, st.x_prev, s, i) * inv_h
         st.v[s, i] = vel
         # written so that NaN, which fails every comparison, counts as bad
         if not (vel.dot(vel) <= sc.max_speed * sc.max_speed):
@@ -687,7 +687,7 @@ def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: 
 
 
 @ti.kernel
-def place_roots(head: Vec3s2, root_frame: Vec3s2, x: Vec3s2, root_t: Vec3s1, root_u: Vec3s1):
+def place_roots(head: Vec3s2, root_frame: Vec3s2, x: ti.types.ndarray(ndim=2), root_t: Vec3s1, root_u: Vec3s1):
     """Root nodes and root reference frames at head pose 1. One thread per strand."""
     for s in range(x.shape[0]):
         strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
@@ -943,7 +943,7 @@ def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: flo
 
 
 @ti.kernel
-def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, x: Vec3s2,
+def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, x: Points2,
                              v: Vec3s2, loads: Vec3s1, kinetic: Scalars1, potential: Scalars1):
     """kinetic[s] = sum 1/2 m |v|^2, potential[s] = -sum m g . x [J] over the free nodes (the root
     edge is driven by the head, not by forces). One thread per strand."""
@@ -953,7 +953,7 @@ def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalar
         for i in range(node_count[s]):
             if inv_mass[s, i] > 0.0:
                 k += 0.5 * mass[s, i] * v[s, i].dot(v[s, i])
-                p -= mass[s, i] * loads[0].dot(x[s, i])
+                p -= mass[s, i] * loads[0].dot(point(x, s, i))
         kinetic[s] = k
         potential[s] = p
 

@@ -27,7 +27,7 @@ import numpy as np
 import taichi as ti
 
 from ..rods import arrays
-from ..rods.arrays import Ints1, Ints2, Scalars1, Scalars2, Vec3s2, vec3
+from ..rods.arrays import Ints1, Ints2, Points2, Scalars1, Scalars2, Vec3s2, edge, point, vec3
 
 ivec3 = ti.types.vector(3, ti.i32)
 IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
@@ -153,13 +153,13 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
         bucket_count[h] = 0
     for s, j in ti.ndrange(x.shape[0], n_seg):
         if j + 1 < node_count[s]:
-            ti.atomic_max(params[MAX_LENGTH], (x[s, j + 1] - x[s, j]).norm())
+            ti.atomic_max(params[MAX_LENGTH], (edge(x, s, j, j + 1)).norm())
     params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
     for s, j in ti.ndrange(x.shape[0], n_seg):
         g = s * n_seg + j
         seg_bucket[g] = -1
         if j + 1 < node_count[s]:
-            c = ti.cast(ti.floor(0.5 * (x[s, j] + x[s, j + 1]) / params[CELL]), ti.i32)
+            c = ti.cast(ti.floor(0.5 * (point(x, s, j) + point(x, s, j + 1)) / params[CELL]), ti.i32)
             h = cell_hash(c, mask)
             seg_cell[g] = c
             seg_bucket[g] = h
@@ -230,8 +230,8 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     for sa, ja in ti.ndrange(x.shape[0], n_seg):
         ga = sa * n_seg + ja
         if seg_bucket[ga] >= 0:
-            a0 = x[sa, ja]
-            a1 = x[sa, ja + 1]
+            a0 = point(x, sa, ja)
+            a1 = point(x, sa, ja + 1)
             ra = radius[sa]
             length_a = (a1 - a0).norm()
             mid_a = 0.5 * (a0 + a1)
@@ -256,13 +256,13 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                             allowed = 0
                             if self_contact != 0 and jb - ja >= gap[sa]:  # jb > ja here
                                 allowed = 1
-                        b0 = x[sb, jb]
-                        b1 = x[sb, jb + 1]
+                        b0 = point(x, sb, jb)
+                        b1 = point(x, sb, jb + 1)
                         rsum = ra + radius[sb]
-                        a0p = x_prev[sa, ja]
-                        a1p = x_prev[sa, ja + 1]
-                        b0p = x_prev[sb, jb]
-                        b1p = x_prev[sb, jb + 1]
+                        a0p = point(x_prev, sa, ja)
+                        a1p = point(x_prev, sa, ja + 1)
+                        b0p = point(x_prev, sb, jb)
+                        b1p = point(x_prev, sb, jb + 1)
                         # how far the pair moved this step: a pair that passed through each
                         # other within it may now be up to that far apart
                         motion = (ti.max((a0 - a0p).norm(), (a1 - a1p).norm())
@@ -304,8 +304,8 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                                         n = before.normalized()
                                     correction = (depth / W) * n
                                     if ti.static(with_friction):
-                                        slip = ((w_a0 * (a0 - x_prev[sa, ja]) + s * (a1 - x_prev[sa, ja + 1]))
-                                                - (w_b0 * (b0 - x_prev[sb, jb]) + t * (b1 - x_prev[sb, jb + 1])))
+                                        slip = ((w_a0 * (a0 - a0p) + s * (a1 - a1p))
+                                                - (w_b0 * (b0 - b0p) + t * (b1 - b1p)))
                                         tangential = slip - slip.dot(n) * n
                                         length = tangential.norm()
                                         limit = friction * depth
@@ -342,7 +342,7 @@ def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.templat
 
 @ti.kernel
 def _contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: Ints1, radius: Scalars1,
-                  gap: Ints1, self_contact: ti.i32, x: Vec3s2, x_prev: Vec3s2, inv_mass: Scalars2,
+                  gap: Ints1, self_contact: ti.i32, x: Points2, x_prev: Points2, inv_mass: Scalars2,
                   dx: Vec3s2, seg_cell: IVec3s1, seg_bucket: Ints1, bucket_count: Ints1,
                   bucket_start: Ints1, cursor: Ints1, sorted_seg: Ints1, mask: ti.i32, friction: float,
                   params: Scalars1, counters: Ints1, delta: Vec3s2, hits: Ints2, record: Ints2):
@@ -483,9 +483,14 @@ class ContactGrid:
         return self._ones
 
     def _pass(self, mode, with_friction, x, x_prev, inv_mass, dx=None):
-        """One pass (grid rebuilt from x); resolving, the corrections go into x and dx."""
+        """One pass (grid rebuilt from x); resolving, the corrections go into x and dx (measuring,
+        dx is unused: a scratch array of the process's float, as positions are float64)."""
+        if dx is None:
+            if getattr(self, "_unused_dx", None) is None:
+                self._unused_dx = arrays.vectors(3, (self.S, self.N))
+            dx = self._unused_dx
         _contact_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
-                      x, x_prev, inv_mass, x if dx is None else dx, self.seg_cell, self.seg_bucket,
+                      x, x_prev, inv_mass, dx, self.seg_cell, self.seg_bucket,
                       self.bucket_count, self.bucket_start, self.cursor, self.sorted_seg, self.T - 1,
                       self.friction, self.params, self.counters, self.delta, self.hits, self.record)
         params = self.params.to_numpy()

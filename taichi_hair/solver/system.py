@@ -87,7 +87,7 @@ class RodSystem:
         than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
         x = self._checked_nodes("positions", x)
         check_strand_geometry(x, self.groom.node_counts)
-        self.state.x.from_numpy(x)
+        self.state.x.from_numpy(x.astype(np.float64))
         self.update_frames()
 
     def set_velocities(self, v) -> None:
