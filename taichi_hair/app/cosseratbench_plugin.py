@@ -3,7 +3,8 @@
 Installed with the `bench` extra (`pip install taichi_hair[bench]`) and registered through the
 entry point group `cosseratbench.solvers` as "taichi_hair" (the explicit step with the fast
 projection, the default), "taichi_hair_shake" (the explicit step with `projection="shake"`) and
-"taichi_hair_implicit", so `cosseratbench run -s taichi_hair` finds it. The core package never imports this module (nor cosseratbench).
+"taichi_hair_implicit", so `cosseratbench run -s taichi_hair` finds it. The core package never
+imports this module (nor cosseratbench).
 
 How a scenario maps onto taichi_hair (one rule for every scenario, no cases per name):
 
@@ -21,8 +22,8 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
   (nodes reversed and turned back on output). A clamped root is taichi_hair's clamped root
   (node 0 and the clamp's material frame held, bending from node 0); a pinned root is a pin on
   node 0 of a free strand (`root="free"`: held in place, free to turn and to spin; the implicit
-  solver, which needs a held root, and the SHAKE solver take `root="pinned"`); both ends free is a free strand. A
-  pinned tip is `add_pin` on the last node; a clamped tip is a clip on the last edge that holds
+  solver, which needs a held root, and the SHAKE solver take `root="pinned"`); both ends free
+  is a free strand. A pinned tip is `add_pin` on the last node; a clamped tip is a clip on the last edge that holds
   its material frame (`hold_twist=True`), turned each frame by `turn_pin` when its motion turns
   it about its axis, and a slider (`slide=axis`) when it slides. A driven root's motion is the
   head motion.

@@ -56,6 +56,7 @@ from ..world.forces import Wind
 from ..rods.groom import Groom
 from ..rods.materials import Material
 from ..world.motion import Shake
+from ..world.scene import PROJECTIONS
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
 
@@ -1039,10 +1040,9 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
     cases = list(cases if cases is not None else stability_cases(quick))
     if precision != "both":
         cases = [replace(c, precision=precision) for c in cases]
-    if integrator is not None:
-        cases = [replace(c, integrator=integrator) for c in cases]
-    if projection is not None:
-        cases = [replace(c, projection=projection) for c in cases]
+    overrides = {k: v for k, v in (("integrator", integrator), ("projection", projection)) if v is not None}
+    if overrides:
+        cases = [replace(c, **overrides) for c in cases]
     wanted = list(dict.fromkeys(c.precision for c in cases))
     here = runtime.precision() if runtime.taichi_is_initialized() else None
     wanted.sort(key=lambda p: p != here)  # this process's precision first, no subprocess for it
@@ -1193,7 +1193,7 @@ def _add_commands(sub):
     stab.add_argument("--duration", type=float, help="simulated seconds per case (default 0.2, quick 0.1)")
     stab.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
                       help="run every case with this integrator (default: each case's own, explicit)")
-    stab.add_argument("--projection", default=None, choices=["fast", "shake"],
+    stab.add_argument("--projection", default=None, choices=PROJECTIONS,
                       help="run every case with this projection of the explicit step (default: each case's own, fast)")
     stab.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     cluster.add_arguments(stab)

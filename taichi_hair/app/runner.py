@@ -18,7 +18,7 @@ import numpy as np
 from . import cluster
 from ..world.colliders import _scalar, _vec
 from ..progress import ProgressBar
-from ..world.scene import Scene
+from ..world.scene import PROJECTIONS, Scene
 
 STATE_FILE = "state.npz"
 PROGRESS_FILE = "progress.json"
@@ -481,7 +481,7 @@ def add_parser(sub):
                    help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra)")
     p.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
                    help="override the scene's integrator (implicit: no stability bound, docs/model.md)")
-    p.add_argument("--projection", default=None, choices=["fast", "shake"],
+    p.add_argument("--projection", default=None, choices=PROJECTIONS,
                    help="override the explicit step's projection (shake: keeps an undamped swing's energy)")
     p.add_argument("--no-progress", action="store_true")
     cluster.add_arguments(p)

@@ -102,7 +102,6 @@ def np_float():
 def like(a):
     """A new ndarray with the same element type and shape as ndarray `a` (contents undefined)."""
     ensure_init()
-    dtype = ti.f64 if a.dtype == ti.f64 or getattr(a.dtype, "dtype", None) == ti.f64 else float
     if a.element_shape:
-        return ti.Vector.ndarray(a.element_shape[0], dtype, a.shape)
-    return ti.ndarray(dtype, a.shape)
+        return ti.Vector.ndarray(a.element_shape[0], a.dtype, a.shape)
+    return ti.ndarray(a.dtype, a.shape)

@@ -51,7 +51,7 @@ def strand_frames(s, clamp: ti.template(), x: ti.template(), node_count: ti.temp
                   m2: ti.template(), kb: ti.template()):
     """Strand s's Bishop frames, material frames and curvature binormals (see update_frames)."""
     n = node_count[s]
-    t_prev = (edge(x, s, 0, 1)).normalized()
+    t_prev = edge(x, s, 0, 1).normalized()
     u = parallel_transport(root_u[s], root_t[s], t_prev)
     kb[s, 0] = vec3(0.0)
     if ti.static(clamp):  # node 0 bends between the clamp (root_t) and edge 0

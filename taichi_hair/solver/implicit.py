@@ -298,7 +298,7 @@ def length_residual(s, md: ti.template(), st: ti.template()):
     for j in range(md.node_count[s] - 1):
         if md.inv_mass[s, j] + md.inv_mass[s, j + 1] > 0.0:
             rest = md.rest_length[s, j]
-            worst = ti.max(worst, ti.abs((edge(st.x, s, j, j + 1)).norm() - rest) / rest)
+            worst = ti.max(worst, ti.abs(edge(st.x, s, j, j + 1).norm() - rest) / rest)
     return worst
 
 

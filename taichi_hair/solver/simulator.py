@@ -11,7 +11,7 @@ import numpy as np
 from ..rods import arrays
 from ..rods.groom import Groom
 from ..progress import ProgressBar
-from ..runtime import ensure_init, precision
+from ..runtime import ensure_init
 from .stability import (DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, scene_bound,
                         stable_time_step, substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
@@ -31,6 +31,12 @@ from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, adva
                    steps_with_strand_contact, strand_mechanical_energy)
 
 DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
+# 1e-6 in both precisions: positions are stored in float64 and edges formed there, so even in
+# float32 |e|^2 - |ebar|^2 resolves to a few eps of the edge itself (~2.4e-7), whatever the
+# coordinates' magnitude. (With float32 positions the floor was ~2 eps X / ds, and a residual
+# left at such a tol was an edge stretched by tol ds / 2 that the next step removed as a
+# velocity kick: docs/model.md, "Positions and velocities in float32".)
+DEFAULT_PROJECTION_TOL = 1e-6
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
 
@@ -60,7 +66,7 @@ class Simulator:
         minimum, so it can feed energy in; see the accuracy and stability reports) or "none"
         (material angles stay as they are).
     projection_tol: max |C_j| / |ebar_j|^2 of the inextensibility projection (default 1e-6 in
-        both precisions: positions are float64, see `default_projection_tol`);
+        both precisions: positions are float64, see `DEFAULT_PROJECTION_TOL`);
         projection_iterations caps it.
     twist_tol: scaled residual max |dE/dtheta| l / max(EI1, GJ) ending the quasistatic solve
         (default 1e-10 float64, 1e-5 float32); twist_iterations caps it.
@@ -147,7 +153,7 @@ class Simulator:
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
             wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
             mesh=facts["mesh"], touch=facts["touch"],
-            projection_tol=_positive("projection_tol", default_projection_tol(groom) if projection_tol is None else projection_tol,
+            projection_tol=_positive("projection_tol", DEFAULT_PROJECTION_TOL if projection_tol is None else projection_tol,
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
@@ -625,15 +631,6 @@ class Simulator:
         k, p = self._mechanical()
         return float(k.sum() + p.sum()) + self.elastic_energy()
 
-
-
-def default_projection_tol(groom: Groom) -> float:
-    """1e-6 in both precisions: positions are stored in float64 and edges formed there, so even
-    in float32 |e|^2 - |ebar|^2 resolves to a few eps of the edge itself (~2.4e-7), whatever
-    the coordinates' magnitude. (With float32 positions the floor was ~2 eps X / ds, and a
-    residual left at such a tol was an edge stretched by tol ds / 2 that the next step removed
-    as a velocity kick: docs/model.md, "Positions and velocities in float32".)"""
-    return 1e-6
 
 
 def _max_air_speed(wind) -> float:

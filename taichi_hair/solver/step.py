@@ -304,14 +304,15 @@ def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
 
 
 @ti.func
-def constraint_edge(s, j, shake, fl: ti.template(), st: ti.template()):
-    """Edge j's direction in the constraint gradient G: its start-of-step vector under SHAKE
-    while that converges (fl.shake and shake = 1), else its current one (the fast projection)."""
-    e = edge(st.x, s, j, j + 1)
+def constraint_edge(s, j, e, shake, fl: ti.template(), st: ti.template()):
+    """Edge j's direction in the constraint gradient G, given its current vector e: its
+    start-of-step vector under SHAKE while that converges (fl.shake and shake = 1), else e (the
+    fast projection)."""
+    g = e
     if ti.static(fl.shake):
         if shake:
-            e = edge(st.x_prev, s, j, j + 1)
-    return e
+            g = edge(st.x_prev, s, j, j + 1)
+    return g
 
 
 @ti.func
@@ -326,7 +327,8 @@ def solve_inextensibility(s, n, shake, fl: ti.template(), md: ti.template(), st:
     if ti.static(fl.clips):
         b = slider_vector(s, n, fl, dr)
         if b.dot(b) > 0.0 and n >= 3:
-            slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(constraint_edge(s, n - 3, shake, fl, st))
+            slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(
+                constraint_edge(s, n - 3, edge(st.x, s, n - 3, n - 2), shake, fl, st))
     # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
     # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
     e_before = vec3(0.0)
@@ -334,7 +336,7 @@ def solve_inextensibility(s, n, shake, fl: ti.template(), md: ti.template(), st:
         move = vec3(0.0)
         e = vec3(0.0)
         if i + 1 < n:
-            e = constraint_edge(s, i, shake, fl, st)
+            e = constraint_edge(s, i, edge(st.x, s, i, i + 1), shake, fl, st)
             move += st.rhs[s, i] * e
         if i > 0:
             move -= st.rhs[s, i - 1] * e_before
@@ -361,7 +363,7 @@ def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: t
     b = slider_vector(s, n, fl, dr)
     for j in range(n - 1):
         e = edge(st.x, s, j, j + 1)
-        g = constraint_edge(s, j, shake, fl, st)
+        g = constraint_edge(s, j, e, shake, fl, st)
         w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
         slide = 0.0  # the slider's share (b . g)^2 of the edge before it
         if ti.static(fl.clips):
@@ -381,7 +383,8 @@ def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: t
             if ti.static(fl.pins):
                 st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
-            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(constraint_edge(s, j + 1, shake, fl, st))
+            g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
+            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(g_next)
     return res, turned
 
 
@@ -393,11 +396,10 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     projection of Goldenthal et al. 2007), or with fl.shake along the start-of-step gradient
     (SHAKE) while each iteration at least halves the residual (SHAKE_RATE) and no edge has turned
     past SHAKE_TURN_COS from its start (else, a head jump or a contact, it switches to the
-    current gradient). Ends when max_j |C_j| /
-    |ebar^j|^2 < projection_tol after contacts, at projection_iterations, or at a stall (an
-    iteration removing less than 10 % of a residual already below STALL_BELOW: the precision's
-    rounding floor; far from satisfied, slow progress is the nonlinear start of Gauss-Newton and
-    it keeps going). Held nodes (the root, pins) have infinite mass (inv_mass 0). Returns
+    current gradient). Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
+    projection_iterations, or at a stall (an iteration removing less than 10 % of a residual
+    already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow progress
+    is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root, pins) have infinite mass (inv_mass 0). Returns
     (iterations, final residual)."""
     n = md.node_count[s]
     now, prev = head_poses(k, fl)

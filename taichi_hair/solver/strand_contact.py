@@ -153,7 +153,7 @@ def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), s
         bucket_count[h] = 0
     for s, j in ti.ndrange(x.shape[0], n_seg):
         if j + 1 < node_count[s]:
-            ti.atomic_max(params[MAX_LENGTH], (edge(x, s, j, j + 1)).norm())
+            ti.atomic_max(params[MAX_LENGTH], edge(x, s, j, j + 1).norm())
     params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
     for s, j in ti.ndrange(x.shape[0], n_seg):
         g = s * n_seg + j

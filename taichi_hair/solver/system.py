@@ -85,16 +85,18 @@ class RodSystem:
         """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
         are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
         than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
-        x = self._checked_nodes("positions", x)
+        x = self._checked_nodes("positions", x, np.float64)  # positions are float64 (arrays.Points2)
         check_strand_geometry(x, self.groom.node_counts)
-        self.state.x.from_numpy(x.astype(np.float64))
+        self.state.x.from_numpy(x)
         self.update_frames()
 
     def set_velocities(self, v) -> None:
         """Set node velocities [S, N, 3] in m/s."""
         self.state.v.from_numpy(self._checked_nodes("velocities", v))
 
-    def _checked_nodes(self, name, values):
+    def _checked_nodes(self, name, values, dtype=None):
+        """values [S, N, 3] as an array of `dtype` (default the precision's float), or ValueError
+        naming `name` for a wrong shape or a non-finite entry."""
         values = np.asarray(values, dtype=np.float64)
         expected = (self.groom.n_strands, self.groom.max_nodes, 3)
         if values.shape != expected:
@@ -102,7 +104,7 @@ class RodSystem:
         if not np.all(np.isfinite(values)):
             s, i = np.argwhere(~np.isfinite(values))[0][:2]
             raise ValueError(f"{name} must be finite; strand {s} node {i} is {values[s, i]}")
-        return values.astype(arrays.np_float())
+        return values.astype(dtype or arrays.np_float())
 
     def material_angles(self) -> np.ndarray:
         """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
