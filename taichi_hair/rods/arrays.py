@@ -34,11 +34,13 @@ Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
 vec3d = ti.types.vector(3, ti.f64)
 Points2 = ti.types.ndarray(dtype=vec3d, ndim=2)  # [S, N] positions [m]
 # the implicit step's banded systems are factored in float64 in both precisions (a hair node's
-# mass and its bending stiffness over a large step differ by up to 1e7: float32 loses them)
-mat4d = ti.types.matrix(4, 4, ti.f64)
-vec4d = ti.types.vector(4, ti.f64)
-Mat4d3 = ti.types.ndarray(dtype=mat4d, ndim=3)  # [S, N, k]: k 4x4 blocks per node
-Vec4d2 = ti.types.ndarray(dtype=vec4d, ndim=2)
+# mass and its bending stiffness over a large step differ by up to 1e7: float32 loses them);
+# node i's unknowns: velocity (3), the multiplier of edge i-1, the angle of edge i-1
+BLOCK = 5
+mat_block = ti.types.matrix(BLOCK, BLOCK, ti.f64)
+vec_block = ti.types.vector(BLOCK, ti.f64)
+BlockMats3 = ti.types.ndarray(dtype=mat_block, ndim=3)  # [S, N, k]: k 5x5 blocks per node
+BlockVecs2 = ti.types.ndarray(dtype=vec_block, ndim=2)
 
 
 def scalars(shape, value=None):

@@ -64,10 +64,41 @@ def corner_signs(c):
 
 
 @ti.func
+def block_inverse(d):
+    """(d^-1, ok) for a 5x5 float64 block d, by partitioning off its last row and column:
+    d = [[a, b], [b^T, c]], d^-1 from a^-1 and the Schur complement c - b^T a^-1 b (Taichi
+    inverts matrices up to 4x4). ok is 0 when a or the complement is singular (or NaN)."""
+    a = ti.types.matrix(4, 4, ti.f64)(0.0)
+    b = ti.types.vector(4, ti.f64)(0.0)
+    for r in ti.static(range(4)):
+        b[r] = d[r, 4]
+        for c in ti.static(range(4)):
+            a[r, c] = d[r, c]
+    ok = 1
+    if not (ti.abs(a.determinant()) > 0.0):
+        ok = 0
+        a = ti.Matrix.identity(ti.f64, 4)
+    a_inv = a.inverse()
+    y = a_inv @ b
+    complement = d[4, 4] - b.dot(y)
+    if not (ti.abs(complement) > 0.0):
+        ok = 0
+        complement = 1.0
+    inv = ti.types.matrix(5, 5, ti.f64)(0.0)
+    for r in ti.static(range(4)):
+        inv[r, 4] = -y[r] / complement
+        inv[4, r] = -y[r] / complement
+        for c in ti.static(range(4)):
+            inv[r, c] = a_inv[r, c] + y[r] * y[c] / complement
+    inv[4, 4] = 1.0 / complement
+    return inv, ok
+
+
+@ti.func
 def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
     """Solve strand s's symmetric block-pentadiagonal system A y = b in place, O(n): for node
     rows i < n, blocks[s, i, 0] = A_ii, blocks[s, i, 1] = A_{i,i-1}, blocks[s, i, 2] =
-    A_{i,i-2} (4x4 float64 each), rhs[s, i] = b_i (float64). A = L D L^T with unit block lower L and block
+    A_{i,i-2} (5x5 float64 each), rhs[s, i] = b_i (float64). A = L D L^T with unit block lower L and block
     diagonal D, no pivoting (A may be indefinite, as a saddle-point system is, if every pivot
     block is invertible): blocks become (D_i^-1, L_{i,i-1}, L_{i,i-2}) and rhs the solution y.
     Returns 1 if a pivot block was singular (or NaN), else 0."""
@@ -76,8 +107,8 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
         a1 = blocks[s, i, 1]
         a2 = blocks[s, i, 2]
         d = blocks[s, i, 0]
-        l1 = ti.types.matrix(4, 4, ti.f64)(0.0)
-        l2 = ti.types.matrix(4, 4, ti.f64)(0.0)
+        l1 = ti.types.matrix(5, 5, ti.f64)(0.0)
+        l2 = ti.types.matrix(5, 5, ti.f64)(0.0)
         if i >= 2:
             l2 = a2 @ blocks[s, i - 2, 0]
             a1 -= a2 @ blocks[s, i - 1, 1].transpose()  # L_{i,i-2} D_{i-2} = A_{i,i-2}
@@ -89,11 +120,9 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
         # asymmetric, and that asymmetry grows along a long stiff chain in this one-sided
         # recurrence (L D L^T formed from the lower blocks only): 201 nodes at 1 mm, bent by
         # microns, went from |L| 1.7 to 6e9 by node 120. Symmetrising both keeps it at 1.7.
-        d = 0.5 * (d + d.transpose())
-        if not (ti.abs(d.determinant()) > 0.0):
+        d_inv, ok = block_inverse(0.5 * (d + d.transpose()))
+        if not ok:
             failed = 1
-            d = ti.Matrix.identity(ti.f64, 4)
-        d_inv = d.inverse()
         blocks[s, i, 0] = 0.5 * (d_inv + d_inv.transpose())
         blocks[s, i, 1] = l1
         blocks[s, i, 2] = l2

@@ -95,9 +95,9 @@ class RodState:
     # yet), [..., HIST_CHANGE] this step's elastic forces minus those [N]
     history: object = None
     tension: object = None  # [S, N-1]: the edges' tensions at the last step [N]
-    blocks: object = None  # [S, N, 3] float64 mat4: the block-banded saddle-point matrix (diagonal,
+    blocks: object = None  # [S, N, 3] float64 5x5: the block-banded saddle-point matrix (diagonal,
     # 1st and 2nd sub-diagonal blocks of each node's row), then its factor
-    block_rhs: object = None  # [S, N] float64 vec4: the right-hand side, then the solution
+    block_rhs: object = None  # [S, N] float64 vec5: the right-hand side, then the solution
 
 
 def _voronoi_and_mass(groom: Groom, linear_density: np.ndarray):
@@ -146,7 +146,8 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
         history=arrays.vectors(3, nodes + (4,)), tension=arrays.scalars(edges if implicit else (1, 1)),
-        blocks=arrays.matrices(4, nodes + (3,), ti.f64), block_rhs=arrays.vectors(4, nodes, dtype=ti.f64),
+        blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
+        block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )
 
 

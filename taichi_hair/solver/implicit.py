@@ -25,14 +25,14 @@ root placement and pins set them after.
 
 import taichi as ti
 
-from ..rods.arrays import edge, mat4d, point, step_displacement, vec3, vec4d
-from ..rods.linalg import block_pentadiagonal_solve
+from ..rods.arrays import edge, mat_block, point, step_displacement, vec3, vec3d, vec_block
+from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.rod import edge_directors, first_node, node_edges
 from ..world.forces import grab_force, grab_stiffness
 from .pins import HELD_DAMPING
 
-mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat4d)
+mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat_block)
 
 
 @ti.func
@@ -54,51 +54,138 @@ def kb_jacobians(e0, e1, kbi):
 
 
 @ti.func
-def node_stencil(s, i, clamp: ti.template(), st: ti.template(), md: ti.template()):
-    """Node i's bending stencil: the Jacobians (G0, G1, G2) of kb_i with respect to x_{i-1},
-    x_i, x_{i+1} [1/m] and its curvature stiffness T_i [J] (E_i ~ 1/2 dkb^T T_i dkb). At a
-    clamped node 0 the previous edge is the clamp, which does not move: G0 = 0."""
+def node_strain_jacobians(s, i, clamp: ti.template(), twist_free: ti.template(), md: ti.template(), st: ti.template()):
+    """Node i's strains and their Jacobians in its three nodes' unknowns (docs/model.md, "The
+    implicit step", Stiffness). The strains: w_i^{i-1} (2), w_i^i (2), the twist m_i; returns
+    (J0, J1, J2, W): J_a [5x5] the strains' derivatives in node i-1+a's unknowns (velocity
+    columns 0-2: its position [1/m]; column 4: the angle of edge i-2+a [1/rad]; column 3, the
+    multiplier, 0), W [5] the strains' stiffnesses (EI1, EI2, EI1, EI2) / (2 l_i), GJ / l_i
+    [J]. The frames are taken as transported in time, so every derivative is local: the
+    material frames' own turning drops out of dw/dx (kb_i is normal to both tangents) and the
+    twist gains the reference twist's gradient, -grad psi_i. At a clamped node 0 the previous
+    edge is the clamp, which does not move (J0 = 0), and its angle is not an unknown. Without
+    twist_free (twist="none") the angles are not solved for: no twist row, no angle columns."""
+    first = ti.static(first_node(clamp))
     e0, e1 = node_edges(s, i, st.x, st.root_t)
-    p, q = kb_jacobians(ti.cast(e0, ti.f64), ti.cast(e1, ti.f64), ti.cast(st.kb[s, i], ti.f64))
+    e0 = ti.cast(e0, ti.f64)
+    e1 = ti.cast(e1, ti.f64)
+    kbi = ti.cast(st.kb[s, i], ti.f64)
+    p, q = kb_jacobians(e0, e1, kbi)
+    psi_prev = kbi / (2.0 * e0.norm())  # grad psi_i at x_{i-1}; at x_{i+1}: psi_next
+    psi_next = -kbi / (2.0 * e1.norm())
     g0 = p
     g1 = -(p + q)
     if i == 0:
         g0 = mat3d(0.0)
         g1 = -q
-    k = ti.cast(md.stiffness[s], ti.f64)
-    t = mat3d(0.0)
+        psi_prev = vec3d(0.0)
+    grads = (g0, g1, q)
+    psis = (psi_prev, -(psi_prev + psi_next), psi_next)
+    jac = [mat_block(0.0), mat_block(0.0), mat_block(0.0)]
     for j in ti.static(range(2)):
         d1, d2 = edge_directors(s, i - 1 + j, st.m1, st.m2, st.root_t, st.root_u)
         m1 = ti.cast(d1, ti.f64)
         m2 = ti.cast(d2, ti.f64)
-        t += k.x * m2.outer_product(m2) + k.y * m1.outer_product(m1)
-    return g0, g1, q, t * (0.5 / ti.cast(md.voronoi[s, i], ti.f64))
+        for a in ti.static(range(3)):
+            r1 = grads[a].transpose() @ m2
+            r2 = -(grads[a].transpose() @ m1)
+            for c in ti.static(range(3)):
+                jac[a][2 * j, c] = r1[c]
+                jac[a][2 * j + 1, c] = r2[c]
+        if ti.static(twist_free):
+            if i - 1 + j >= first:  # the angle of edge i-1+j, stored with node i+j: dw/dtheta = (w2, -w1)
+                jac[1 + j][2 * j, 4] = -kbi.dot(m1)
+                jac[1 + j][2 * j + 1, 4] = -kbi.dot(m2)
+                jac[1 + j][4, 4] = 2.0 * j - 1.0  # m_i = theta^i - theta^{i-1} + ...
+    k = ti.cast(md.stiffness[s], ti.f64)
+    inv_l = 1.0 / ti.cast(md.voronoi[s, i], ti.f64)
+    weight = vec_block(0.5 * k.x * inv_l, 0.5 * k.y * inv_l, 0.5 * k.x * inv_l, 0.5 * k.y * inv_l, 0.0)
+    if ti.static(twist_free):
+        weight[4] = k.z * inv_l
+        for a in ti.static(range(3)):
+            for c in ti.static(range(3)):
+                jac[a][4, c] = -psis[a][c]
+    return jac[0], jac[1], jac[2], weight
 
 
 @ti.func
-def assemble_stiffness(s, clamp: ti.template(), scale, md: ti.template(), st: ti.template(), load_history=1):
-    """blocks += scale K (free-free couplings only; blocks as in block_pentadiagonal_solve) and
-    st.dx += K dx_prev [N] on every node (held ones included: a moving root's last
-    displacement loads its neighbours)."""
+def theta_free(i, clamp: ti.template(), twist_free: ti.template()):
+    """1 if node i's angle unknown (edge i-1's) is solved for, else 0 (node 0's is the clamp's
+    or none; a hinge root's edge 0 keeps its angle; twist="none" solves none)."""
+    free = 0
+    if ti.static(twist_free):
+        if i - 1 >= ti.static(first_node(clamp)):
+            free = 1
+    return free
+
+
+@ti.func
+def assemble_stiffness(s, clamp: ti.template(), twist_free: ti.template(), scale, md: ti.template(),
+                       st: ti.template(), load_history=1):
+    """blocks += scale K, K the Gauss-Newton Hessian sum_i J_i^T W_i J_i of the energy over the
+    free nodes' positions and the free edges' angles (node_strain_jacobians; blocks as in
+    block_pentadiagonal_solve). With load_history, st.dx += K_xx dx_prev [N] on every node
+    and block_rhs[., 4] += K_theta,x dx_prev [J/rad] (held nodes' displacements included: a
+    moving root's last displacement loads its neighbours); condense_history then turns st.dx
+    into the condensed K dx_prev."""
     n = md.node_count[s]
     for i in range(ti.static(first_node(clamp)), n - 1):
-        g0, g1, g2, t = node_stencil(s, i, clamp, st, md)
-        prev = ti.max(i - 1, 0)  # the clamp's node -1 does not exist: its G0 is 0
+        jac0, jac1, jac2, weight = node_strain_jacobians(s, i, clamp, twist_free, md, st)
         if load_history:
-            y = t @ (g0 @ ti.cast(st.history[s, prev, HIST_DX], ti.f64) + g1 @ ti.cast(st.history[s, i, HIST_DX], ti.f64)
-                     + g2 @ ti.cast(st.history[s, i + 1, HIST_DX], ti.f64))
-            st.dx[s, prev] += ti.cast(g0.transpose() @ y, float)
-            st.dx[s, i] += ti.cast(g1.transpose() @ y, float)
-            st.dx[s, i + 1] += ti.cast(g2.transpose() @ y, float)
-        jac = (g0, g1, g2)
-        t_jac = (scale * t @ g0, scale * t @ g1, scale * t @ g2)
-        for a in ti.static(range(3)):
-            for b in ti.static(range(a + 1)):
+            strain = vec_block(0.0)
+            for a in ti.static(range(3)):
+                d = ti.cast(st.history[s, ti.max(i - 1 + a, 0), HIST_DX], ti.f64)  # J0 = 0 at node 0
+                strain += (jac0, jac1, jac2)[a] @ vec_block(d.x, d.y, d.z, 0.0, 0.0)
+            y = weight * strain
+            for a in ti.static(range(3)):
                 na = i - 1 + a
+                if na >= 0:
+                    back = (jac0, jac1, jac2)[a].transpose() @ y
+                    st.dx[s, na] += ti.cast(vec3d(back[0], back[1], back[2]), float)
+                    st.block_rhs[s, na][4] += back[4]
+        for a in ti.static(range(3)):  # held nodes' positions are not unknowns
+            if i - 1 + a >= 0:
+                if md.inv_mass[s, i - 1 + a] == 0.0:
+                    for r in ti.static(range(5)):
+                        for c in ti.static(range(3)):
+                            (jac0, jac1, jac2)[a][r, c] = 0.0
+        jac = (jac0, jac1, jac2)
+        for a in ti.static(range(3)):
+            weighted = scale * (weight.outer_product(vec_block(1.0)) * jac[a])  # W J_a, row-scaled
+            for b in ti.static(range(a + 1)):
                 nb = i - 1 + b
                 if nb >= 0:
-                    if md.inv_mass[s, na] > 0.0 and md.inv_mass[s, nb] > 0.0:
-                        st.blocks[s, na, a - b] += embed(jac[a].transpose() @ t_jac[b])
+                    st.blocks[s, i - 1 + a, a - b] += weighted.transpose() @ jac[b]
+
+
+@ti.func
+def condense_history(s, n, clamp: ti.template(), scale, md: ti.template(), st: ti.template()):
+    """st.dx -= K_x,theta K_theta,theta^-1 K_theta,x dx_prev [N] on free nodes, after
+    assemble_stiffness(load_history) has left scale K in the blocks and K_theta,x dx_prev in
+    block_rhs[., 4]: st.dx then holds the condensed stiffness (the angles at equilibrium)
+    times dx_prev, what the step's system predicted for the last step's displacement. One
+    tridiagonal solve over the free angles (st.diag, st.upper, st.rhs as scratch)."""
+    lo = ti.static(first_node(clamp))
+    for j in range(lo, n - 1):  # edge j's angle lives with node j + 1
+        st.diag[s, j] = ti.cast(st.blocks[s, j + 1, 0][4, 4] / scale, float)
+        st.rhs[s, j] = ti.cast(st.block_rhs[s, j + 1][4], float)
+        if j + 2 < n:
+            st.upper[s, j] = ti.cast(st.blocks[s, j + 2, 1][4, 4] / scale, float)
+    thomas_solve(s, lo, n - 2, st.diag, st.upper, st.rhs)
+    for r in range(n):
+        if md.inv_mass[s, r] > 0.0:
+            coupled = vec3d(0.0)
+            for k in ti.static(range(-2, 3)):
+                c = r + k  # node c's angle: edge c-1's
+                if c - 1 >= lo and c < n:
+                    z = ti.cast(st.rhs[s, c - 1], ti.f64)
+                    if ti.static(k <= 0):
+                        block = st.blocks[s, r, -k]
+                        coupled += z * vec3d(block[0, 4], block[1, 4], block[2, 4])
+                    else:
+                        block = st.blocks[s, c, k]
+                        coupled += z * vec3d(block[4, 0], block[4, 1], block[4, 2])
+            st.dx[s, r] -= ti.cast(coupled / scale, float)
 
 
 @ti.func
@@ -162,16 +249,22 @@ def record_elastic_change(s, md: ti.template(), st: ti.template()):
 
 @ti.func
 def embed(m):
-    """The 3x3 matrix m as the upper-left block of a 4x4 one (the node's velocity rows)."""
-    return mat4d([[m[0, 0], m[0, 1], m[0, 2], 0.0], [m[1, 0], m[1, 1], m[1, 2], 0.0],
-                 [m[2, 0], m[2, 1], m[2, 2], 0.0], [0.0, 0.0, 0.0, 0.0]])
+    """The 3x3 matrix m as the upper-left block of a node block (the node's velocity rows)."""
+    out = mat_block(0.0)
+    for r in ti.static(range(3)):
+        for c in ti.static(range(3)):
+            out[r, c] = m[r, c]
+    return out
 
 
 @ti.func
 def velocity_row(t, value):
-    """A 4x4 block whose only nonzero row is the last: (t, value) (a constraint's row)."""
-    return mat4d([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0],
-                 [t.x, t.y, t.z, value]])
+    """A node block whose only nonzero row is the multiplier's: (t, value, 0) (a constraint's row)."""
+    out = mat_block(0.0)
+    for c in ti.static(range(3)):
+        out[3, c] = t[c]
+    out[3, 3] = value
+    return out
 
 
 @ti.func
@@ -209,17 +302,19 @@ def assemble_constraints(s, n, history, inv_step, md: ti.template(), st: ti.temp
 
 @ti.func
 def clear_system(s, n, clear_dx, st: ti.template()):
-    """Zero strand s's blocks (and with clear_dx its dx, the K dx_prev accumulator)."""
+    """Zero strand s's blocks and right-hand side (and with clear_dx its dx, the K dx_prev
+    accumulator)."""
     for i in range(n):
         if clear_dx:
             st.dx[s, i] = vec3(0.0)
+        st.block_rhs[s, i] = vec_block(0.0)
         for b in ti.static(range(3)):
-            st.blocks[s, i, b] = mat4d(0.0)
+            st.blocks[s, i, b] = mat_block(0.0)
 
 
 @ti.func
-def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch: ti.template(), md: ti.template(),
-                         st: ti.template(), dr: ti.template()):
+def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), twist_free: ti.template(),
+                         touch: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
     """One of the step's solves (module doc): the predictor, or a length correction (repeated
     by stage_integrate while an edge is off by more than CORRECTION_TOL), chosen at run time so
     the kernel holds one copy of the assembly and the solver (they dominate its compile time).
@@ -228,7 +323,8 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch:
     inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n
     and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
     correction 1, after the root and pins are placed: one Newton step back onto the edge
-    lengths in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) with
+    lengths in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) (the angles
+    following at equilibrium) with
     t_j . (move_{j+1} - move_j) = -(|e_j| - l_j), added to x and dx. The predictor holds the
     lengths only to first order; the fast projection that follows removes the rest in the
     metric M, which for stiff hair over a large step is a kink (a falling hair gained 27 % of
@@ -238,10 +334,13 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch:
     hh = 2.0 * h / 3.0
     predict = correction == 0
     clear_system(s, n, predict, st)
-    assemble_stiffness(s, clamp, hh * hh, md, st, predict)
+    assemble_stiffness(s, clamp, twist_free, hh * hh, md, st, predict)
     if predict:
+        if ti.static(twist_free):
+            condense_history(s, n, clamp, hh * hh, md, st)
         # the part of the last step's elastic force change that K missed (module doc), carried
-        # into this step: r = f_n - f_{n-1} + K dx_prev (st.dx holds K dx_prev here)
+        # into this step: r = f_n - f_{n-1} + K dx_prev (st.dx holds K dx_prev here, the angles
+        # at equilibrium)
         for i in range(n):
             r = st.history[s, i, HIST_CHANGE] + st.dx[s, i]
             if not (r.dot(r) >= 0.0):  # NaN: no earlier force yet
@@ -261,8 +360,13 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch:
                 rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE]
                                                    + damping * st.v[s, i] - st.dx[s, i] / 3.0)
                 diagonal += hh * damping
-        st.blocks[s, i, 0] += embed(diagonal * ti.Matrix.identity(float, 3))
-        st.block_rhs[s, i] = vec4d(rhs.x, rhs.y, rhs.z, 0.0)
+        block = embed(diagonal * ti.Matrix.identity(float, 3))
+        if not theta_free(i, clamp, twist_free):
+            block[4, 4] = 1.0
+        st.blocks[s, i, 0] += block
+        # the angles' rows: 0 = K_theta,x (x_{n+1} - xhat) + K_theta,theta (theta_{n+1} - theta_n)
+        # (the twist at equilibrium at x_n; st.dx's condensed K takes in xhat - x_n)
+        st.block_rhs[s, i] = vec_block(rhs.x, rhs.y, rhs.z, 0.0, 0.0)
     if predict:
         assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
     else:
@@ -276,7 +380,8 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), touch:
             st.x_prev[s, i] = st.x[s, i]
             st.history[s, i, HIST_V] = st.v[s, i]
         if md.inv_mass[s, i] > 0.0:
-            solved = ti.cast(st.block_rhs[s, i].xyz, float)
+            y = st.block_rhs[s, i]
+            solved = ti.cast(vec3d(y[0], y[1], y[2]), float)
             if predict:
                 st.v[s, i] = solved
                 st.dx[s, i] = st.history[s, i, HIST_DX] / 3.0 + hh * solved

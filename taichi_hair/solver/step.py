@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass
 
 import taichi as ti
 
-from ..rods.arrays import (Ints1, Ints2, Mat4d3, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2, Vec3s3, Vec4d2,
-                           Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
+from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
+                           Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
 from .collisions import head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
@@ -111,7 +111,7 @@ StateArgs = ti.types.argpack(
     x=Points2, v=Vec3s2, x_prev=Points2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
     bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
     diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
-    tension=Scalars2, blocks=Mat4d3, block_rhs=Vec4d2)
+    tension=Scalars2, blocks=BlockMats3, block_rhs=BlockVecs2)
 DriveArgs = ti.types.argpack(
     head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2, clip=Vec3s3)
@@ -546,6 +546,7 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
         again = 1
         while again:
             if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag, ti.static(fl.root_mode == 0),
+                                    ti.static(fl.twist_mode != TWIST_CODES["none"]),
                                     fl.touch, md, st, dr):
                 bad = 1
             if passes == 0:
@@ -975,10 +976,10 @@ def seed_history(h: float, node_count: Ints1, v: Vec3s2, history: Vec3s3, tensio
 
 
 @ti.kernel
-def bending_stiffness_blocks(clamp: ti.template(), md: ModelArgs, st: StateArgs):
-    """st.blocks[..., :3, :3] = the Gauss-Newton bending stiffness K of every strand [N/m]
-    (implicit.py; free nodes only, blocks as in linalg.block_pentadiagonal_solve) at the
-    current frames; st.dx is overwritten (scratch). One thread per strand."""
+def stiffness_blocks(clamp: ti.template(), twist_free: ti.template(), md: ModelArgs, st: StateArgs):
+    """st.blocks = the implicit step's Gauss-Newton stiffness of every strand over the free
+    nodes' positions [N/m] and the free edges' angles (implicit.assemble_stiffness; blocks as
+    in linalg.block_pentadiagonal_solve) at the current frames. One thread per strand."""
     for s in range(st.x.shape[0]):
         clear_system(s, md.node_count[s], True, st)
-        assemble_stiffness(s, clamp, 1.0, md, st)
+        assemble_stiffness(s, clamp, twist_free, 1.0, md, st, 0)

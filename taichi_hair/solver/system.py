@@ -14,7 +14,7 @@ from ..world.scene import ROOT_MODES
 from ..rods.rod import strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
-from .step import StepBundles, bending_stiffness_blocks, run_twist_update, total_elastic_forces
+from .step import StepBundles, run_twist_update, stiffness_blocks, total_elastic_forces
 from ..world.scene import INTEGRATORS
 from ..rods.twist import TWIST_MODES, held_twist_forces
 from ..validation import is_integer
@@ -193,24 +193,41 @@ class RodSystem:
                               md.rest_twist, md.voronoi, md.stiffness, clip, st.force)
         return self.state.force.to_numpy().astype(np.float64)
 
-    def bending_stiffness(self) -> np.ndarray:
+    def bending_stiffness(self, condensed: bool = True) -> np.ndarray:
         """The implicit step's stiffness matrix K [S, 3N, 3N] in N/m at the current frames: the
-        Gauss-Newton Hessian of the bending energy over the free nodes (held rows and columns
-        zero; docs/model.md, "The implicit step"). Needs integrator="implicit"."""
+        Gauss-Newton Hessian of the elastic energy over the free nodes, the free edges'
+        material angles condensed out at equilibrium (K_xx - K_xt K_tt^-1 K_tx; held rows and
+        columns zero; docs/model.md, "The implicit step"). At rest it is the Jacobian of the
+        forces with the twist re-solved. condensed=False: the matrix over positions and angles
+        as the step's solve holds it, [S, 5N, 5N], node i's unknowns 5i..5i+4 (position,
+        a zero multiplier slot, edge i-1's angle; held positions and angles zero). Needs
+        integrator="implicit"."""
         if self.integrator != "implicit":
             raise ValueError('bending_stiffness needs a RodSystem built with integrator="implicit"')
-        bending_stiffness_blocks(self.model.clamp, self.bundles.model, self.bundles.state)
-        blocks = self.state.blocks.to_numpy().astype(np.float64)[..., :3, :3]
+        stiffness_blocks(self.model.clamp, self.twist != "none", self.bundles.model, self.bundles.state)
+        blocks = self.state.blocks.to_numpy().astype(np.float64)
         s_count, n_max = blocks.shape[:2]
-        dense = np.zeros((s_count, 3 * n_max, 3 * n_max))
-        for i in range(n_max):
-            for k in range(3):
-                j = i - k
-                if j >= 0:
-                    dense[:, 3 * i:3 * i + 3, 3 * j:3 * j + 3] = blocks[:, i, k]
-                    if k:
-                        dense[:, 3 * j:3 * j + 3, 3 * i:3 * i + 3] = np.swapaxes(blocks[:, i, k], 1, 2)
-        return dense
+        inv_mass = self.model.inv_mass.to_numpy()
+        first_angle = 1 if self.root == "clamped" else 2  # node i holds edge i-1's angle
+        out = np.zeros((s_count, 3 * n_max, 3 * n_max))
+        if not condensed:
+            out = np.zeros((s_count, arrays.BLOCK * n_max, arrays.BLOCK * n_max))
+        for s in range(s_count):
+            n = self.groom.node_counts[s]
+            dense = dense_from_blocks(blocks[s], n)
+            if not condensed:
+                out[s, :arrays.BLOCK * n, :arrays.BLOCK * n] = dense
+                continue
+            free = np.flatnonzero(inv_mass[s, :n] > 0)
+            xs = (arrays.BLOCK * free[:, None] + np.arange(3)).ravel()
+            ts = arrays.BLOCK * np.arange(first_angle, n) + 4 if self.twist != "none" else np.zeros(0, int)
+            k_xx = dense[np.ix_(xs, xs)]
+            if len(ts):
+                k_xt = dense[np.ix_(xs, ts)]
+                k_xx = k_xx - k_xt @ np.linalg.solve(dense[np.ix_(ts, ts)], k_xt.T)
+            rows = (3 * free[:, None] + np.arange(3)).ravel()
+            out[s][np.ix_(rows, rows)] = k_xx
+        return out
 
     def theta_gradient(self) -> np.ndarray:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
@@ -219,6 +236,21 @@ class RodSystem:
         theta_gradient(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
                        md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
         return out.to_numpy().astype(np.float64)
+
+
+def dense_from_blocks(blocks, n) -> np.ndarray:
+    """The symmetric matrix [B n, B n] (B = arrays.BLOCK) of one strand's block-pentadiagonal
+    blocks [N, 3, B, B] (diagonal, first and second sub-diagonal blocks of each node's row,
+    linalg.block_pentadiagonal_solve's layout), its first n node rows."""
+    size = arrays.BLOCK
+    dense = np.zeros((size * n, size * n))
+    for i in range(n):
+        for k in range(min(3, i + 1)):
+            j = i - k
+            dense[size * i:size * i + size, size * j:size * j + size] = blocks[i, k]
+            if k:
+                dense[size * j:size * j + size, size * i:size * i + size] = blocks[i, k].T
+    return dense
 
 
 def default_twist_tol() -> float:
