@@ -66,9 +66,9 @@ def node_strain_jacobians(s, i, clamp: ti.template(), twist_free: ti.template(),
     edge is the clamp, which does not move (J0 = 0), and its angle is not an unknown. Without
     twist_free (twist="none") the angles are not solved for: no twist row, no angle columns."""
     first = ti.static(first_node(clamp))
-    e0, e1 = node_edges(s, i, st.x, st.root_t)
-    e0 = ti.cast(e0, ti.f64)
-    e1 = ti.cast(e1, ti.f64)
+    edge0, edge1 = node_edges(s, i, st.x, st.root_t)
+    e0 = ti.cast(edge0, ti.f64)
+    e1 = ti.cast(edge1, ti.f64)
     kbi = ti.cast(st.kb[s, i], ti.f64)
     p, q = kb_jacobians(e0, e1, kbi)
     psi_prev = kbi / (2.0 * e0.norm())  # grad psi_i at x_{i-1}; at x_{i+1}: psi_next
