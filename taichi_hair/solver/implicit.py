@@ -10,17 +10,17 @@ Per strand, with hh = 2h/3 and the history x_{n-1} = x_n - dx_prev, v_{n-1}:
 
     vhat = (4 v_n - v_{n-1}) / 3,   x_{n+1} = xhat + hh v_{n+1},   xhat = x_n + dx_prev / 3,
 
-K the Gauss-Newton stiffness of the bending energy (sum over bending nodes of
-(dkb_i/dx)^T T_i (dkb_i/dx), T_i = sum_j (EI1 m2^j m2^j^T + EI2 m1^j m1^j^T) / (2 l_i)),
-K_t the constraints' geometric stiffness from the last step's tensions (K + K_t also holds
-the grab springs' stiffness K_g when a scene has grab tools), r_n the part of the
-last step's elastic force change that K did not predict, D the air drag's diagonal, G the
-edges' unit tangents (t . (v_i - v_{i-1}) per edge, rows scaled by the node mass), lambda the
-edges' impulses. A bending stencil couples nodes i-1..i+1: with each edge's multiplier stored
-with its far node the matrix is block-pentadiagonal in 4x4 node blocks, symmetric and
-indefinite, and factored by block LDL^T without pivoting in O(n) per strand (one thread per
-strand), in float64 in both precisions. Held nodes (the root, pins) keep identity rows: the
-root placement and pins set them after.
+K the Gauss-Newton Hessian of the elastic energy over the positions and the free edges'
+material angles (node_strain_jacobians), whose angle rows say the twist stays at equilibrium,
+so the solve condenses them out; K_t the constraints' geometric stiffness from the last
+step's tensions (K + K_t also holds the grab springs' stiffness K_g when a scene has grab
+tools), r_n the part of the last step's elastic force change that the condensed K did not
+predict, D the air drag's diagonal, G the edges' unit tangents (t . (v_i - v_{i-1}) per edge,
+rows scaled by the node mass), lambda the edges' impulses. A bending or twist stencil couples
+nodes i-1..i+1: with each edge's multiplier and angle stored with its far node the matrix is
+block-pentadiagonal in 5x5 node blocks, symmetric and indefinite, and factored by block LDL^T
+without pivoting in O(n) per strand (one thread per strand), in float64 in both precisions.
+Held nodes (the root, pins) keep identity rows: the root placement and pins set them after.
 """
 
 import taichi as ti
