@@ -23,9 +23,9 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
   (node 0 and the clamp's material frame held, bending from node 0); a pinned root is a pin on
   node 0 of a free strand (`root="free"`: held in place, free to turn and to spin; the implicit
   solver, which needs a held root, and the SHAKE solver take `root="pinned"`); both ends free
-  is a free strand. A pinned tip is `add_pin` on the last node; a clamped tip is a clip on the last edge that holds
-  its material frame (`hold_twist=True`), turned each frame by `turn_pin` when its motion turns
-  it about its axis, and a slider (`slide=axis`) when it slides. A driven root's motion is the
+  is a free strand. A pinned tip is `add_pin` on the last node; a clamped tip is a clip on the
+  last edge that holds its material frame (`hold_twist=True`), turned each frame by `turn_pin`
+  when its motion turns it about its axis, and a slider (`slide=axis`) when it slides. A driven root's motion is the
   head motion.
 - Contact between rods: several rods, or a scenario whose rods can reach themselves
   (`self_contact`), get `StrandContact` (radius = each rod's, the largest rod friction,

@@ -632,7 +632,6 @@ class Simulator:
         return float(k.sum() + p.sum()) + self.elastic_energy()
 
 
-
 def _max_air_speed(wind) -> float:
     """Fastest air [m/s] a wind can blow: mean * (1 + gust) + three turbulence rms."""
     if isinstance(wind, Wind):

@@ -399,8 +399,8 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     current gradient). Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
     projection_iterations, or at a stall (an iteration removing less than 10 % of a residual
     already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow progress
-    is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root, pins) have infinite mass (inv_mass 0). Returns
-    (iterations, final residual)."""
+    is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root, pins) have
+    infinite mass (inv_mass 0). Returns (iterations, final residual)."""
     n = md.node_count[s]
     now, prev = head_poses(k, fl)
     it = 0

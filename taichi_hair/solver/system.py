@@ -11,7 +11,7 @@ from ..rods.frames import update_frames, update_material_frames
 from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
 from ..rods.materials import per_strand_materials
 from ..world.scene import ROOT_MODES
-from ..rods.rod import strand_elastic_energy, theta_gradient
+from ..rods.rod import first_node, strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
 from ..rods.state import COUNTERS, build
 from .step import StepBundles, run_twist_update, stiffness_blocks, total_elastic_forces
@@ -208,10 +208,9 @@ class RodSystem:
         blocks = self.state.blocks.to_numpy().astype(np.float64)
         s_count, n_max = blocks.shape[:2]
         inv_mass = self.model.inv_mass.to_numpy()
-        first_angle = 1 if self.root == "clamped" else 2  # node i holds edge i-1's angle
-        out = np.zeros((s_count, 3 * n_max, 3 * n_max))
-        if not condensed:
-            out = np.zeros((s_count, arrays.BLOCK * n_max, arrays.BLOCK * n_max))
+        first_angle = first_node(self.model.clamp) + 1  # node i holds edge i-1's angle (theta_free)
+        size = 3 if condensed else arrays.BLOCK
+        out = np.zeros((s_count, size * n_max, size * n_max))
         for s in range(s_count):
             n = self.groom.node_counts[s]
             dense = dense_from_blocks(blocks[s], n)
