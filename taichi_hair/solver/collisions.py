@@ -3,7 +3,7 @@ projection (see step.strand_project), alternating with the inextensibility solve
 
 import taichi as ti
 
-from ..rods.arrays import point, step_displacement
+from ..rods.arrays import mat_block, point, step_displacement, vec_block
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -19,6 +19,19 @@ def head_rotate(head: ti.template(), k, p):
 def to_head(head: ti.template(), k, p):
     """R^T (p - t): world point p [m] in head coordinates at head pose k."""
     return unrotate_rows(head[k, 0], head[k, 1], head[k, 2], p - head[k, 3])
+
+
+@ti.func
+def head_poses(k, fl: ti.template()):
+    """(now, prev): the head pose indices ending and starting step k of a launch (step.py's module doc)."""
+    now = 1
+    prev = 0
+    if ti.static(fl.moving_head):
+        now = k + 1
+        prev = k
+    elif k > 0:
+        prev = 1
+    return now, prev
 
 
 @ti.func
@@ -58,9 +71,39 @@ def root_keeps_collider(root_distance, margin):
     return root_distance >= -margin
 
 
+CONTACT_SPRING = 1e4  # contact spring / the node's largest diagonal entry (contact_spring)
+
+
+@ti.func
+def contact_spring(s, i, target, st: ti.template()):
+    """Inside the implicit step's length correction (springs mode of strand_collide): a spring
+    w (target - x_i) on node i's rows of the correction's system, w = CONTACT_SPRING x the
+    node's largest diagonal entry, so the solve moves the node to its contact target to ~1e-4
+    of the push and the rest of the strand follows in the step's metric."""
+    block = st.blocks[s, i, 0]
+    w = CONTACT_SPRING * ti.max(block[0, 0], block[1, 1], block[2, 2])
+    spring = mat_block(0.0)
+    for r in ti.static(range(3)):
+        spring[r, r] = w
+    st.blocks[s, i, 0] = block + spring
+    push = ti.cast(target - point(st.x, s, i), ti.f64) * w
+    st.block_rhs[s, i] += vec_block(push.x, push.y, push.z, 0.0, 0.0)
+
+
+@ti.func
+def place_contact(s, i, target, springs: ti.template(), st: ti.template()):
+    """Node i of strand s to its contact target [m] (world): placed (dx = x - x_prev), or with
+    springs pulled there by the implicit correction's solve (contact_spring)."""
+    if ti.static(springs):
+        contact_spring(s, i, target, st)
+    else:
+        st.x[s, i] = target
+        st.dx[s, i] = step_displacement(st.x, st.x_prev, s, i)  # placed, not moved by: see strand_velocities
+
+
 @ti.func
 def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.template(), md: ti.template(),
-                   st: ti.template(), dr: ti.template(), co: ti.template()):
+                   st: ti.template(), dr: ti.template(), co: ti.template(), springs: ti.template() = False):
     """Resolve every free node of strand s against the colliders (co: analytic table, optional
     distance grid; fl.mesh), and the hands (fl.touch). Head-attached shapes are handled in head
     coordinates so their friction sees the motion relative to the moving head (head poses now /
@@ -69,9 +112,11 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     that strand: pushing its nodes out would fight the held root every step (a groom rooted
     inside a neck capsule, say). A root on the surface or within the margin keeps the collider;
     the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
-    node's step displacement dx becomes x - x_prev. Returns the number of pushes."""
+    node's step displacement dx becomes x - x_prev. With springs (the implicit step's length
+    correction) nothing moves: each push becomes a spring to its target in the correction's
+    system (contact_spring). Returns the number of pushes."""
     pushes = 0
-    x, x_prev, dx, head = ti.static(st.x, st.x_prev, st.dx, dr.head)  # aliases
+    x, x_prev, head = ti.static(st.x, st.x_prev, dr.head)  # aliases
     root = point(x, s, 0)
     for c in range(n_analytic):
         on_head = co.params[c][3] > 0.5
@@ -86,10 +131,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                                              co.params[c][0], local)
                     if d < co.params[c][1]:
                         local = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2])
-                        x[s, i] = local
                         if on_head:
-                            x[s, i] = from_head(head, now, local)
-                        dx[s, i] = step_displacement(x, x_prev, s, i)  # placed, not moved by: see strand_velocities
+                            local = from_head(head, now, local)
+                        place_contact(s, i, local, springs, st)
                         pushes += 1
     if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
@@ -103,10 +147,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                     d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
                     if d < co.sdf_meta[1][1]:
                         local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
-                        x[s, i] = local
                         if on_head:
-                            x[s, i] = from_head(head, now, local)
-                        dx[s, i] = step_displacement(x, x_prev, s, i)
+                            local = from_head(head, now, local)
+                        place_contact(s, i, local, springs, st)
                         pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -119,8 +162,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         local_prev = point(x_prev, s, i) - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
                         if d < dr.tools[k][2]:
-                            x[s, i] = centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
-                                                               dr.tools[k][3])
-                            dx[s, i] = step_displacement(x, x_prev, s, i)
+                            place_contact(s, i, centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
+                                                                         dr.tools[k][3]), springs, st)
                             pushes += 1
     return pushes

@@ -30,6 +30,7 @@ from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.rod import edge_directors, first_node, node_edges
 from ..world.forces import grab_force, grab_stiffness
+from .collisions import head_poses, strand_collide
 from .pins import HELD_DAMPING
 
 mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat_block)
@@ -313,8 +314,8 @@ def clear_system(s, n, clear_dx, st: ti.template()):
 
 
 @ti.func
-def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), twist_free: ti.template(),
-                         touch: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
+def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), fl: ti.template(), sc,
+                         md: ti.template(), st: ti.template(), dr: ti.template(), co: ti.template()):
     """One of the step's solves (module doc): the predictor, or a length correction (repeated
     by stage_integrate while an edge is off by more than CORRECTION_TOL), chosen at run time so
     the kernel holds one copy of the assembly and the solver (they dominate its compile time).
@@ -329,7 +330,13 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), twist_
     lengths only to first order; the fast projection that follows removes the rest in the
     metric M, which for stiff hair over a large step is a kink (a falling hair gained 27 % of
     the energy in play in 0.2 s at 20 ms without this).
+    The correction also takes the contacts (fl.contacts): each node the fast projection would
+    push (collisions.strand_collide, friction included) gets a stiff spring to where it would
+    be pushed, so the strand follows the push in the same metric instead of the projection
+    kinking it (5 mm curls resting on a head gained 0.74 of the energy in play in 0.2 s
+    without this).
     Returns 1 if the factorisation met a singular pivot (a non-finite state), else 0."""
+    clamp, touch = ti.static(fl.root_mode == 0, fl.touch)
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
     predict = correction == 0
@@ -371,6 +378,9 @@ def strand_implicit_pass(s, k, correction, h, drag, clamp: ti.template(), twist_
         assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
     else:
         assemble_constraints(s, n, 0.0, 1.0, md, st)
+        if ti.static(fl.contacts):
+            now, prev = head_poses(k, fl)
+            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, True)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
     if predict:
         for i in range(1, n):  # the multiplier of edge i-1, scaled by m_i (assemble_constraints)

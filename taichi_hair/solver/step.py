@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
                            Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
-from .collisions import head_rotate, strand_collide
+from .collisions import head_poses, head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -224,18 +224,6 @@ def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> 
 
 
 # ---- per-strand helpers ------------------------------------------------------------------------
-
-@ti.func
-def head_poses(k, fl: ti.template()):
-    """(now, prev): the head pose indices ending and starting step k of a launch (module doc)."""
-    now = 1
-    prev = 0
-    if ti.static(fl.moving_head):
-        now = k + 1
-        prev = k
-    elif k > 0:
-        prev = 1
-    return now, prev
 
 
 @ti.func
@@ -545,9 +533,8 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
         passes = 0
         again = 1
         while again:
-            if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag, ti.static(fl.root_mode == 0),
-                                    ti.static(fl.twist_mode != TWIST_CODES["none"]),
-                                    fl.touch, md, st, dr):
+            if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag,
+                                    ti.static(fl.twist_mode != TWIST_CODES["none"]), fl, sc, md, st, dr, co):
                 bad = 1
             if passes == 0:
                 place_root_and_pins(s, k, now, fl, sc, md, st, dr)
