@@ -1,7 +1,7 @@
 """The implicit step (integrator="implicit", docs/model.md "The implicit step"): linearised
 BDF2 with the edge lengths as constraints inside one block-banded solve per strand, a Newton
-step back onto the lengths in the same metric, then the fast projection as in the explicit
-step; velocities from BDF2's difference formula.
+step back onto the lengths and out of the colliders in the same metric, then the fast
+projection as in the explicit step; velocities from BDF2's difference formula.
 
 Per strand, with hh = 2h/3 and the history x_{n-1} = x_n - dx_prev, v_{n-1}:
 
@@ -324,7 +324,7 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n
     and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
     correction 1, after the root and pins are placed: one Newton step back onto the edge
-    lengths in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) (the angles
+    lengths (and the contacts' targets, below) in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) (the angles
     following at equilibrium) with
     t_j . (move_{j+1} - move_j) = -(|e_j| - l_j), added to x and dx. The predictor holds the
     lengths only to first order; the fast projection that follows removes the rest in the
