@@ -324,8 +324,8 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n
     and x = x_{n+1} on free nodes (held nodes: dx = 0, placed after).
     correction 1, after the root and pins are placed: one Newton step back onto the edge
-    lengths (and the contacts' targets, below) in the step's own metric, the smallest move in (M + hh^2 (K + K_t)) (the angles
-    following at equilibrium) with
+    lengths (and the contacts' targets, below) in the step's own metric, the smallest move in
+    (M + hh^2 (K + K_t)) (the angles following at equilibrium) with
     t_j . (move_{j+1} - move_j) = -(|e_j| - l_j), added to x and dx. The predictor holds the
     lengths only to first order; the fast projection that follows removes the rest in the
     metric M, which for stiff hair over a large step is a kink (a falling hair gained 27 % of
