@@ -72,6 +72,12 @@ def root_keeps_collider(root_distance, margin):
 
 
 CONTACT_SPRING = 1e4  # contact spring / the node's largest diagonal entry (contact_spring)
+# Pushes deeper than this fraction of the node's edge go into the implicit step's correction as
+# springs (place_contact). A spring holds the node in all three directions through the
+# correction, so resting contact stuck where the projection lets it slide: at dt = 1 ms the
+# curly scene's tips sat 1.2e-2 of L from the reference with every push a spring, 1.2e-3 with
+# none; deep pushes left to the projection kink stiff curls (docs/model.md, "The implicit step").
+SPRING_PUSH = 0.05
 
 
 @ti.func
@@ -91,11 +97,14 @@ def contact_spring(s, i, target, st: ti.template()):
 
 
 @ti.func
-def place_contact(s, i, target, springs: ti.template(), st: ti.template()):
+def place_contact(s, i, target, springs: ti.template(), md: ti.template(), st: ti.template()):
     """Node i of strand s to its contact target [m] (world): placed (dx = x - x_prev), or with
-    springs pulled there by the implicit correction's solve (contact_spring)."""
+    springs pulled there by the implicit correction's solve (contact_spring) if the push is
+    deeper than SPRING_PUSH of the node's edge (shallower ones are left to the fast projection
+    after the solve)."""
     if ti.static(springs):
-        contact_spring(s, i, target, st)
+        if (target - point(st.x, s, i)).norm() > SPRING_PUSH * md.rest_length[s, ti.max(i - 1, 0)]:
+            contact_spring(s, i, target, st)
     else:
         st.x[s, i] = target
         st.dx[s, i] = step_displacement(st.x, st.x_prev, s, i)  # placed, not moved by: see strand_velocities
@@ -117,40 +126,39 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     system (contact_spring). Returns the number of pushes."""
     pushes = 0
     x, x_prev, head = ti.static(st.x, st.x_prev, dr.head)  # aliases
-    root = point(x, s, 0)
+    # Node 0 is the root: its distance, taken first in each collider's node loop, decides whether
+    # the strand keeps that collider (see root_keeps_collider). One distance query per node and
+    # collider, the root's included: a separate root query doubled the contact code that every
+    # kernel using it compiles (twice in the implicit step's).
     for c in range(n_analytic):
         on_head = co.params[c][3] > 0.5
-        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
-        d_root, _ = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0],
-                                      root_local)
-        if d_root >= -co.params[c][1]:  # see root_keeps_collider
-            for i in range(md.node_count[s]):
-                if md.inv_mass[s, i] > 0.0:
-                    local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
-                    d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1],
-                                             co.params[c][0], local)
-                    if d < co.params[c][1]:
-                        local = resolve_contact(local, local_prev, d, n, co.params[c][1], co.params[c][2])
-                        if on_head:
-                            local = from_head(head, now, local)
-                        place_contact(s, i, local, springs, st)
-                        pushes += 1
+        margin = co.params[c][1]
+        for i in range(md.node_count[s]):
+            local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
+            d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0], local)
+            if i == 0 and d < -margin:
+                break
+            if md.inv_mass[s, i] > 0.0 and d < margin:
+                local = resolve_contact(local, local_prev, d, n, margin, co.params[c][2])
+                if on_head:
+                    local = from_head(head, now, local)
+                place_contact(s, i, local, springs, md, st)
+                pushes += 1
     if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
         on_head = co.sdf_meta[2][0] > 0.5
-        root_local, _ = collider_frame(on_head, head, now, prev, root, root)
-        d_root, _ = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], root_local)
-        if d_root >= -co.sdf_meta[1][1]:  # see root_keeps_collider
-            for i in range(md.node_count[s]):
-                if md.inv_mass[s, i] > 0.0:
-                    local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
-                    d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
-                    if d < co.sdf_meta[1][1]:
-                        local = resolve_contact(local, local_prev, d, n, co.sdf_meta[1][1], co.sdf_meta[1][2])
-                        if on_head:
-                            local = from_head(head, now, local)
-                        place_contact(s, i, local, springs, st)
-                        pushes += 1
+        margin = co.sdf_meta[1][1]
+        for i in range(md.node_count[s]):
+            local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
+            d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
+            if i == 0 and d < -margin:
+                break
+            if md.inv_mass[s, i] > 0.0 and d < margin:
+                local = resolve_contact(local, local_prev, d, n, margin, co.sdf_meta[1][2])
+                if on_head:
+                    local = from_head(head, now, local)
+                place_contact(s, i, local, springs, md, st)
+                pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
             if ti.cast(dr.tools[k][0], ti.i32) == HAND:
@@ -163,6 +171,6 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         d, n = sphere_distance(local, dr.tools[k][1])
                         if d < dr.tools[k][2]:
                             place_contact(s, i, centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
-                                                                         dr.tools[k][3]), springs, st)
+                                                                         dr.tools[k][3]), springs, md, st)
                             pushes += 1
     return pushes

@@ -374,10 +374,9 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
         # the angles' rows: 0 = K_theta,x (x_{n+1} - xhat) + K_theta,theta (theta_{n+1} - theta_n)
         # (the twist at equilibrium at x_n; st.dx's condensed K takes in xhat - x_n)
         st.block_rhs[s, i] = vec_block(rhs.x, rhs.y, rhs.z, 0.0, 0.0)
-    if predict:
-        assemble_constraints(s, n, 1.0 / 3.0, 1.0 / hh, md, st)
-    else:
-        assemble_constraints(s, n, 0.0, 1.0, md, st)
+    # the predictor's rows hold the history and are in velocities, the correction's in moves
+    assemble_constraints(s, n, ti.select(predict, 1.0 / 3.0, 0.0), ti.select(predict, 1.0 / hh, 1.0), md, st)
+    if not predict:
         if ti.static(fl.contacts):
             now, prev = head_poses(k, fl)
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, True)
