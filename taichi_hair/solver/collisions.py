@@ -122,8 +122,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     inside a neck capsule, say). A root on the surface or within the margin keeps the collider;
     the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
     node's step displacement dx becomes x - x_prev. With springs (the implicit step's length
-    correction) nothing moves: each push becomes a spring to its target in the correction's
-    system (contact_spring). Returns the number of pushes."""
+    correction) nothing moves: each push deeper than SPRING_PUSH of the node's edge becomes a
+    spring to its target in the correction's system (contact_spring; place_contact). Returns
+    the number of pushes."""
     pushes = 0
     x, x_prev, head = ti.static(st.x, st.x_prev, dr.head)  # aliases
     # Node 0 is the root: its distance, taken first in each collider's node loop, decides whether

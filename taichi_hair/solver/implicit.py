@@ -330,11 +330,12 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     lengths only to first order; the fast projection that follows removes the rest in the
     metric M, which for stiff hair over a large step is a kink (a falling hair gained 27 % of
     the energy in play in 0.2 s at 20 ms without this).
-    The correction also takes the contacts (fl.contacts): each node the fast projection would
-    push (collisions.strand_collide, friction included) gets a stiff spring to where it would
-    be pushed, so the strand follows the push in the same metric instead of the projection
-    kinking it (5 mm curls resting on a head gained 0.74 of the energy in play in 0.2 s
-    without this).
+    The correction also takes the deep contacts (fl.contacts): each node the fast projection
+    would push by more than collisions.SPRING_PUSH of its edge (friction included) gets a stiff
+    spring to where it would be pushed, so the strand follows the push in the same metric
+    instead of the projection kinking it (5 mm curls resting on a head gained 0.74 of the
+    energy in play in 0.2 s without this). Shallow pushes stay with the projection: as springs
+    they made resting contact sticky (collisions.SPRING_PUSH).
     Returns 1 if the factorisation met a singular pivot (a non-finite state), else 0."""
     clamp, touch = ti.static(fl.root_mode == 0, fl.touch)
     n = md.node_count[s]
