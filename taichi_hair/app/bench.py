@@ -244,7 +244,8 @@ def add_parser(sub):
                     help="run cosseratbench's scenarios for taichi_hair and the other solvers side by "
                          "side and print every metric and wall time in one table (float64)")
     cb.add_argument("--experiments", default="", help="comma-separated experiments (default: all)")
-    cb.add_argument("--solvers", default="taichi_hair,taichi_hair_shake,taichi_hair_implicit,pyelastica,mujoco",
+    cb.add_argument("--solvers",
+                    default="taichi_hair,taichi_hair_shake,taichi_hair_stretch,taichi_hair_implicit,pyelastica,mujoco",
                     help="comma-separated cosseratbench solvers")
     cb.add_argument("--n-elements", type=int, default=None,
                     help="elements per rod (default: each experiment's)")

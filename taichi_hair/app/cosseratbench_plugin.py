@@ -2,7 +2,8 @@
 
 Installed with the `bench` extra (`pip install taichi_hair[bench]`) and registered through the
 entry point group `cosseratbench.solvers` as "taichi_hair" (the explicit step with the fast
-projection, the default), "taichi_hair_shake" (the explicit step with `projection="shake"`) and
+projection, the default), "taichi_hair_shake" (the explicit step with `projection="shake"`),
+"taichi_hair_stretch" (the explicit step with extensible edges, `extensible=True`) and
 "taichi_hair_implicit", so `cosseratbench run -s taichi_hair` finds it. The core package never
 imports this module (nor cosseratbench).
 
@@ -10,9 +11,11 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
 
 - Each rod is one strand of `n_elements` edges; E, G, radius, density become a round
   `Material`. Its stress-free shape is straight (explicit zero rest curvature), untwisted.
-- The rod is inextensible and unshearable (Kmoch's model): only bending, twist, gravity,
-  loads and contact. A rod that starts stretched (`rest_arc_length`) cannot be stretched
-  here, so it starts at its unstretched length: every element keeps the direction it has in
+- The rod is unshearable and, as hair in Kmoch's model, inextensible; "taichi_hair_stretch"
+  lets it stretch with EA = E A (`Simulator(extensible=True)`: each edge a compliant
+  constraint in the projection) as the scenarios' Cosserat rods do, and there a rod that
+  starts stretched (`rest_arc_length`) starts at the scenario's nodes, stretched. Otherwise
+  such a rod starts at its unstretched length. The rest shape: every element keeps the direction it has in
   the scenario and gets length L / n_elements, walked from a clamped root, or both ways from
   the rod's middle node otherwise (two crossing ropes still cross there). Unstretched rods
   whose polyline chords fall short of L / n_elements get the same treatment, so the strand's
@@ -156,9 +159,10 @@ class _Strand:
         self.scenario_nodes = nodes
         self.d1_start = d1
         # a clamped root stays where the scenario clamps it; any other strand keeps its middle
-        # node in place (two ropes crossing still cross where they did)
+        # point in place (two ropes crossing still cross where they did, and a symmetric rope
+        # stays symmetric)
         clamped_root = rod.condition(self.root_end) is EndCondition.CLAMPED
-        self.rest_nodes = _unstretched(nodes, rod.length, 0 if clamped_root else len(nodes) // 2)
+        self.rest_nodes = _unstretched(nodes, rod.length, 0 if clamped_root else None)
         # a clip turns about its own edge, which may point against the scenario's axis
         edge = self.rest_nodes[-1] - self.rest_nodes[-2]
         self.tip_sign = (float(np.sign(edge @ self.axis[self.tip_end])) if self.tip_motion is not None
@@ -180,13 +184,20 @@ class _Strand:
         return 0 if end is self.root_end else len(self.rest_nodes) - 1
 
 
-def _unstretched(nodes: np.ndarray, length: float, anchor: int = 0) -> np.ndarray:
+def _unstretched(nodes: np.ndarray, length: float, anchor: int | None = 0) -> np.ndarray:
     """The polyline with the same element directions and every element L / n long, walked both
-    ways from node `anchor`, which stays where it is."""
+    ways from node `anchor`, which stays where it is; anchor None: from the polyline's middle
+    point (the middle node, or the middle of the middle element), so that a symmetric rope stays
+    symmetric. Measured: anchored at node n // 2 of the 51-element crossing ropes, the walk
+    shifted them by 0.1 mm off their symmetric start, and the upper rope then slid 6 mm along the
+    lower one (a discrete rope rests lower with the load near a node), 6e-3 of shape error."""
     e = np.diff(nodes, axis=0)
     t = e / np.linalg.norm(e, axis=1, keepdims=True)
     walked = np.vstack([np.zeros(3), np.cumsum(t * (length / len(e)), axis=0)])
-    return nodes[anchor] + walked - walked[anchor]
+    if anchor is not None:
+        return nodes[anchor] + walked - walked[anchor]
+    middle = [(len(nodes) - 1) // 2, len(nodes) // 2]  # one node twice, or the middle element's two
+    return nodes[middle].mean(axis=0) + walked - walked[middle].mean(axis=0)
 
 
 def _motion_callable(strand: _Strand):
@@ -206,13 +217,14 @@ class TaichiHairSolver:
     name = "taichi_hair"
     backend_version = (f"taichi_hair {_version('taichi_hair')} (sources {_source_digest()}), "
                        f"taichi {_version('taichi')}")
-    # Inextensible and unshearable: no STRETCH, no SHEAR. Rod-rod and self contact with Coulomb
-    # friction: StrandContact. Obstacles: Plane and Capsule colliders.
+    # Inextensible and unshearable: no STRETCH (but taichi_hair_stretch), no SHEAR. Rod-rod and
+    # self contact with Coulomb friction: StrandContact. Obstacles: Plane and Capsule colliders.
     capabilities = frozenset({Capability.CYLINDER_CONTACT, Capability.PLANE_CONTACT,
                               Capability.ROD_CONTACT, Capability.ROD_FRICTION})
 
     integrator = "explicit"
     projection = "fast"  # the explicit step's projection (Simulator's `projection`)
+    extensible = False  # Simulator's `extensible` (explicit step)
     IMPLICIT_DT = 1e-3  # the implicit step's default dt [s] (Simulator's), at most
 
     def __init__(self, time_step_scale: float = 1.0) -> None:
@@ -249,7 +261,8 @@ class TaichiHairSolver:
         except NotImplementedError:  # run() raises it again, and the run is reported unsupported
             steps = {}
         return {
-            "integrator": (f"symplectic Euler + {self.projection} inextensibility projection (explicit)"
+            "integrator": (f"symplectic Euler + {self.projection} projection"
+                           f"{', compliant edges EA' if self.extensible else ''} (explicit)"
                            if self.integrator == "explicit" else
                            "linearised BDF2 with lengths in the solve + fast projection (implicit)"),
             **steps,
@@ -316,7 +329,8 @@ class TaichiHairSolver:
                        # sideways way out but its small bow: Gauss-Seidel needs a few hundred passes
                        projection_iterations=PROJECTION_ITERATIONS,
                        integrator=self.integrator, root=root,
-                       **({"projection": self.projection} if self.integrator == "explicit" else {}),
+                       **({"projection": self.projection, "extensible": self.extensible}
+                          if self.integrator == "explicit" else {}),
                        root_motion=_motion_callable(motions[0]) if motions else None)
         if contact:
             options["strand_contact"] = th.StrandContact(
@@ -324,6 +338,12 @@ class TaichiHairSolver:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
             sim = th.Simulator(groom, materials, **options)
+        if self.extensible and any(s.rod.rest_arc_length is not None for s in strands):
+            x = sim.positions()  # pre-stretched rods start where the scenario puts them
+            for k, s in enumerate(strands):
+                if s.rod.rest_arc_length is not None:
+                    x[k, :len(s.scenario_nodes)] = s.scenario_nodes
+            sim.set_positions(x)
         for k, s in enumerate(strands):
             condition = s.rod.condition(s.tip_end)
             last = len(s.rest_nodes) - 1
@@ -382,7 +402,7 @@ class TaichiHairSolver:
                 d1 = np.cos(a)[:, None] * m1 + np.sin(a)[:, None] * m2
                 directors[k].append(d1 / np.linalg.norm(d1, axis=1, keepdims=True))
 
-        record()  # t = 0: the strand as it starts (a pre-stretched rod at its unstretched length)
+        record()  # t = 0: the strand as it starts (a pre-stretched rod unstretched, but with extensible)
         times = np.linspace(0.0, scenario.duration, n_frames)
         turned = [s for s in strands if s.tip_motion is not None]
         try:
@@ -414,8 +434,19 @@ class TaichiHairShakeSolver(TaichiHairSolver):
     projection = "shake"
 
 
+class TaichiHairStretchSolver(TaichiHairSolver):
+    """The same mapping with extensible edges (Simulator(extensible=True): each edge a compliant
+    constraint of axial stiffness E A in the fast projection), as the scenarios' Cosserat rods;
+    pre-stretched rods start stretched."""
+
+    name = "taichi_hair_stretch"
+    extensible = True
+    capabilities = TaichiHairSolver.capabilities | {Capability.STRETCH}
+
+
 # ---- side by side: `taichi-hair bench --cosseratbench` ---------------------------------------
-COMPARED = ("taichi_hair", "taichi_hair_shake", "taichi_hair_implicit", "pyelastica", "mujoco")
+COMPARED = ("taichi_hair", "taichi_hair_shake", "taichi_hair_stretch", "taichi_hair_implicit", "pyelastica",
+            "mujoco")
 
 
 def compare(experiments=(), solvers=COMPARED, *, n_elements=None, out="out/cosseratbench",

@@ -75,6 +75,11 @@ class Material:
         return self.density * self.area
 
     @property
+    def axial_stiffness(self) -> float:
+        """EA [N]: stretch stiffness (used only by extensible strands, Simulator(extensible=True))."""
+        return self.youngs_modulus * self.area
+
+    @property
     def bending_stiffness(self) -> tuple[float, float]:
         """(EI1, EI2) [N m^2]: stiff (about m2) and soft (about m1) bending stiffness."""
         a, b = self.semi_axes
@@ -103,10 +108,11 @@ def per_strand_materials(material, n_strands: int) -> list[Material]:
 
 
 def stiffness_table(materials: list[Material]) -> dict[str, np.ndarray]:
-    """Per-strand arrays [S] of EI1, EI2, GJ [N m^2] and linear density [kg/m]."""
+    """Per-strand arrays [S] of EI1, EI2, GJ [N m^2], linear density [kg/m] and EA [N]."""
     return {
         "ei1": np.array([m.bending_stiffness[0] for m in materials]),
         "ei2": np.array([m.bending_stiffness[1] for m in materials]),
         "gj": np.array([m.twist_stiffness for m in materials]),
         "linear_density": np.array([m.linear_density for m in materials]),
+        "axial": np.array([m.axial_stiffness for m in materials]),
     }

@@ -3,7 +3,7 @@
 Notation of docs/model.md: interior node i lies between edges i-1 and i; its material curvature
 seen from edge j in {i-1, i} is w_i^j = (kb_i . m2^j, -kb_i . m1^j), its rest value wbar_i^j
 is stored in rest_kappa[s, i] = (wbar_i^{i-1}, wbar_i^i) as a vec4, and l_i is its Voronoi
-length [m]. stiffness[s] = (EI1, EI2, GJ, rho A) [N m^2, N m^2, N m^2, kg/m].
+length [m]. stiffness[s] = (EI1, EI2, GJ, EA) [N m^2, N m^2, N m^2, N].
 
     E_bend  = sum_i 1/(4 l_i) sum_{j in {i-1,i}} (w - wbar)^T diag(EI1, EI2) (w - wbar)
     E_twist = sum_i GJ (theta^i - theta^{i-1} - mbar_i)^2 / (2 l_i)

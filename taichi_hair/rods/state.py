@@ -24,7 +24,8 @@ class RodModel:
     two rest edges; the two end nodes: half their edge, which is also the clamped root node's
     share of the strand); inv_mass [S, N] 1/kg (0 on the root node, which rides on the head);
     clamp: the root is clamped (node 0 bends and twists against the head-carried root frame)
-    (False: a hinge or a rigid first edge); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], rho A [kg/m]);
+    (False: a hinge or a rigid first edge); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], EA [N]: EA
+    is read by extensible strands only);
     rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
     rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
     the root edge's two nodes [m], its unit tangent and its reference u (the root edge's rest
@@ -94,7 +95,9 @@ class RodState:
     # displacements [m], [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none
     # yet), [..., HIST_CHANGE] this step's elastic forces minus those [N]
     history: object = None
-    tension: object = None  # [S, N-1]: the edges' tensions at the last step [N]
+    # [S, N-1]: the edges' tensions at the last step [N] (the implicit step's, or an extensible
+    # strand's, accumulated by its projection; a [1, 1] placeholder otherwise)
+    tension: object = None
     blocks: object = None  # [S, N, 3] float64 5x5: the block-banded saddle-point matrix (diagonal,
     # 1st and 2nd sub-diagonal blocks of each node's row), then its factor
     block_rhs: object = None  # [S, N] float64 vec5: the right-hand side, then the solution
@@ -126,7 +129,8 @@ def perpendicular_unit(t: np.ndarray) -> np.ndarray:
     return u / np.linalg.norm(u, axis=1)[:, None]
 
 
-def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implicit: bool = False) -> RodState:
+def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implicit: bool = False,
+                   extensible: bool = False) -> RodState:
     s_count, n_max = groom.n_strands, groom.max_nodes
     edges = (s_count, n_max - 1)
     nodes = (s_count, n_max) if implicit else (1, 1)
@@ -145,7 +149,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        history=arrays.vectors(3, nodes + (4,)), tension=arrays.scalars(edges if implicit else (1, 1)),
+        history=arrays.vectors(3, nodes + (4,)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
         blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
         block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )
@@ -178,11 +182,12 @@ def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarra
     return theta
 
 
-def build(groom: Groom, material, clamp: bool = True, implicit: bool = False) -> tuple[RodModel, RodState]:
+def build(groom: Groom, material, clamp: bool = True, implicit: bool = False,
+          extensible: bool = False) -> tuple[RodModel, RodState]:
     """Model and state for `groom` with `material` (one Material or one per strand), the state
     at the rest shape with rest material frames; clamp: node 0 bends against the root frame
     (root="clamped"; False for a hinge or a rigid first edge); implicit: allocate the implicit
-    step's arrays.
+    step's arrays; extensible: allocate the edge tensions (Simulator(extensible=True)).
     Rest curvatures and twists are measured on the rest shape with the same kernels the
     simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
@@ -191,7 +196,7 @@ def build(groom: Groom, material, clamp: bool = True, implicit: bool = False) ->
     root_t = groom.positions[:, 1] - groom.positions[:, 0]
     root_t /= np.linalg.norm(root_t, axis=1)[:, None]
     root_u = perpendicular_unit(root_t)
-    state = allocate_state(groom, root_t, root_u, implicit)
+    state = allocate_state(groom, root_t, root_u, implicit, extensible)
     node_count = arrays.ints((groom.n_strands,), groom.node_counts)
     update_frames(clamp, state.x, node_count, state.root_t, state.root_u, state.theta, state.bishop_u,
                   state.bishop_v, state.m1, state.m2, state.kb)
@@ -220,7 +225,7 @@ def build(groom: Groom, material, clamp: bool = True, implicit: bool = False) ->
     rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
     if groom.rest_twist is not None:  # a sag-free rest shape holds the groomed angles in balance
         rest_twist = np.asarray(groom.rest_twist, dtype=np.float64)
-    stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["linear_density"]], axis=1)
+    stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["axial"]], axis=1)
     model = RodModel(
         groom=groom, materials=tuple(materials), clamp=bool(clamp), node_count=node_count,
         rest_length=arrays.scalars(rest_length.shape, rest_length),

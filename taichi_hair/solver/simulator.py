@@ -103,6 +103,11 @@ class Simulator:
         first-order loss of swing) or "shake" (constraint forces along the start-of-step edges,
         SHAKE: an undamped swing keeps its energy; docs/model.md "Time step" says where it is
         less robust and why "fast" stays the default). Explicit integrator only.
+    extensible: False (default: inextensible edges, Kmoch's model and right for hair) or True:
+        each edge stretches like a spring of axial stiffness EA (`Material.axial_stiffness`),
+        a compliant constraint inside the same projection (docs/model.md "Extensible strands"):
+        for ropes and soft rods whose stretch under load matters (cosseratbench's). Explicit
+        integrator only.
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -113,11 +118,12 @@ class Simulator:
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
-                 integrator: str = "explicit", strand_contact=None, projection: str = "fast"):
+                 integrator: str = "explicit", strand_contact=None, projection: str = "fast",
+                 extensible: bool = False):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
-                         projection)
+                         projection, extensible)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
         self.twist = twist
@@ -127,7 +133,7 @@ class Simulator:
             raise ValueError("integrator='implicit' needs a held root (root='clamped', 'pinned' or "
                              "'edge'); a free root (root='free') runs with integrator='explicit'")
         self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
-                              twist_iterations=twist_iterations, integrator=integrator)
+                              twist_iterations=twist_iterations, integrator=integrator, extensible=extensible)
         self.integrator = integrator
         self._history_h = None  # the step the implicit history was last seeded or stepped with
         self.model, self.state = self.rods.model, self.rods.state
@@ -157,7 +163,8 @@ class Simulator:
                                      "", upper=1.0),
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
-            twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection)
+            twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection,
+            extensible=bool(extensible))
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self.time = 0.0
@@ -510,7 +517,7 @@ class Simulator:
         residuals = self.state.residuals.to_numpy()
         report = {
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
-            "projection": self.plan.projection, "substeps": self.substeps,
+            "projection": self.plan.projection, "extensible": self.plan.extensible, "substeps": self.substeps,
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
@@ -626,10 +633,22 @@ class Simulator:
         """Gravitational potential -sum m g . x over free nodes [J] (zero at the origin)."""
         return float(self._mechanical()[1].sum())
 
+    def stretch_energy(self) -> float:
+        """Stretch energy sum_j EA (|e_j| - |ebar_j|)^2 / (2 |ebar_j|) [J] of extensible strands
+        (Simulator(extensible=True)); 0 for inextensible ones."""
+        if not self.plan.extensible:
+            return 0.0
+        lengths = np.linalg.norm(np.diff(self.positions(), axis=1), axis=2)
+        rest = self.model.rest_length.to_numpy().astype(np.float64)
+        ea = self.model.stiffness.to_numpy()[:, 3].astype(np.float64)
+        used = np.arange(rest.shape[1])[None, :] < (self.model.node_count.to_numpy() - 1)[:, None]
+        return float(np.sum(np.where(used, ea[:, None] * (lengths - rest) ** 2 / (2 * np.where(used, rest, 1.0)),
+                                     0.0)))
+
     def total_energy(self) -> float:
-        """kinetic + gravity + elastic [J]."""
+        """kinetic + gravity + elastic (+ stretch, extensible strands) [J]."""
         k, p = self._mechanical()
-        return float(k.sum() + p.sum()) + self.elastic_energy()
+        return float(k.sum() + p.sum()) + self.elastic_energy() + self.stretch_energy()
 
 
 def _max_air_speed(wind) -> float:
@@ -647,10 +666,11 @@ def _check_max_substeps(value) -> int:
 
 def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                      wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
-                     projection):
+                     projection, extensible):
     check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
                         touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag,
-                        integrator=integrator, strand_contact=strand_contact, projection=projection)
+                        integrator=integrator, strand_contact=strand_contact, projection=projection,
+                        extensible=extensible)
     for name, value in (("projection_iterations", projection_iterations),
                         ("twist_iterations", twist_iterations)):
         if not (is_integer(value) and value >= 1):

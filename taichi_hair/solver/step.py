@@ -75,6 +75,7 @@ class StepPlan:
     root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
     integrator: str = "explicit"  # one of world.scene.INTEGRATORS
     projection: str = "fast"  # one of world.scene.PROJECTIONS (explicit integrator)
+    extensible: bool = False  # edges stretch with axial stiffness EA (explicit integrator)
 
     @property
     def pinned_root(self) -> bool:
@@ -129,7 +130,8 @@ class StageFlags:
     moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held; clips:
     a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
     symplectic Euler; shake: the projection's constraint forces along the start-of-step edges
-    (strand_project)."""
+    (strand_project); stretch: the edges are compliant constraints with axial stiffness EA
+    (assemble_projection)."""
 
     external: bool
     wind_field: bool
@@ -144,6 +146,7 @@ class StageFlags:
     implicit: bool = False
     clips: bool = False
     shake: bool = False
+    stretch: bool = False
 
 
 @functools.lru_cache(maxsize=256)
@@ -153,7 +156,8 @@ def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False
     flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
                  touch=plan.touch, pins=pins, root_mode=plan.root_mode,
-                 implicit=plan.integrator == "implicit", clips=clips, shake=plan.projection == "shake")
+                 implicit=plan.integrator == "implicit", clips=clips, shake=plan.projection == "shake",
+                 stretch=plan.extensible)
     flags.update(overrides)
     return StageFlags(**flags)
 
@@ -248,8 +252,12 @@ def strand_symplectic_euler(s, h, fl: ti.template(), md: ti.template(), st: ti.t
     """v += h F / m, x_prev = x, x += h v for the free nodes (inv_mass > 0); dx = the step's
     displacement so far (h v, 0 on held nodes), which the projection and contacts add to. A
     slider's two nodes (the strand's last edge, pins.py) move together along its axis under the
-    sum of their forces."""
+    sum of their forces. An extensible strand's edge tensions start the step at zero
+    (assemble_projection)."""
     n = md.node_count[s]
+    if ti.static(fl.stretch):
+        for j in range(n - 1):
+            st.tension[s, j] = 0.0
     for i in range(n):
         st.x_prev[s, i] = st.x[s, i]
         st.dx[s, i] = vec3(0.0)
@@ -304,13 +312,17 @@ def constraint_edge(s, j, e, shake, fl: ti.template(), st: ti.template()):
 
 
 @ti.func
-def solve_inextensibility(s, n, shake, fl: ti.template(), md: ti.template(), st: ti.template(),
+def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), st: ti.template(),
                           dr: ti.template()):
     """One projection iteration: (G M^-1 G^T) dlambda = C(x) (tridiagonal, assembled in
     diag/upper/rhs by assemble_projection), x -= M^-1 G^T dlambda, G along constraint_edge;
     the correction is added to the step's displacement dx too (see strand_velocities). A
-    slider's pair moves by -2 dlambda b (b . e) through the edge before it, along its axis only."""
+    slider's pair moves by -2 dlambda b (b . e) through the edge before it, along its axis only.
+    An extensible edge's tension grows by the force 2 |e| dlambda / h^2 of this iteration."""
     thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
+    if ti.static(fl.stretch):
+        for j in range(n - 1):
+            st.tension[s, j] += 2.0 * edge(st.x, s, j, j + 1).norm() * st.rhs[s, j] / (h * h)
     slide = vec3(0.0)
     if ti.static(fl.clips):
         b = slider_vector(s, n, fl, dr)
@@ -339,13 +351,17 @@ def solve_inextensibility(s, n, shake, fl: ti.template(), md: ti.template(), st:
 
 
 @ti.func
-def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: ti.template(),
+def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st: ti.template(),
                         dr: ti.template()):
     """The projection's tridiagonal system G M^-1 G^T (diag, upper) and right-hand side C(x)
     (rhs), G along constraint_edge. An edge with both nodes held (a clip) is prescribed: its row
     is the identity with a zero right-hand side, outside the residual; with pins the diagonal is
-    damped (HELD_DAMPING). Returns (max_j |C_j| / |ebar^j|^2 over the free edges, 1 if an edge
-    has turned past SHAKE_TURN_COS from its G direction, else 0)."""
+    damped (HELD_DAMPING). An extensible strand (fl.stretch) makes each edge a compliant
+    constraint (XPBD): diag + alpha_j / h^2 and C_j - alpha_j / h^2 Lambda_j, with Lambda_j =
+    h^2 T_j / (2 |e|) the multiplier of the tension T_j [N] the step has applied so far
+    (st.tension) and alpha_j = 2 |ebar| |e| (|e| + |ebar|) / EA, so that at convergence
+    T_j = EA (|e| - |ebar|) / |ebar| exactly (docs/model.md, "Extensible strands"). Returns (max_j of that residual / |ebar^j|^2 over the free edges,
+    1 if an edge has turned past SHAKE_TURN_COS from its G direction, else 0)."""
     res = 0.0
     turned = 0
     b = slider_vector(s, n, fl, dr)
@@ -362,9 +378,15 @@ def assemble_projection(s, n, shake, fl: ti.template(), md: ti.template(), st: t
         if w > 0.0 or slide > 0.0:
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
+            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
+            if ti.static(fl.stretch):
+                length = ti.sqrt(e.dot(e))
+                rest = md.rest_length[s, j]
+                stretch = rest * (length + rest) / md.stiffness[s].w  # alpha / (2 |e|) [m^2/N]
+                c -= stretch * st.tension[s, j]
+                st.diag[s, j] += 2.0 * length * stretch / (h * h)
             res = ti.max(res, ti.abs(c) / l2)
             st.rhs[s, j] = c
-            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
             if ti.static(fl.shake):
                 if e.dot(g) < SHAKE_TURN_COS * ti.sqrt(e.dot(e) * g.dot(g)):
                     turned = 1
@@ -401,18 +423,18 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
-        res, turned = assemble_projection(s, n, shake, fl, md, st, dr)
+        res, turned = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
         switched = 0
         if ti.static(fl.shake):
             if shake and (turned or (it >= 1 and res > SHAKE_RATE * previous)):
                 # slow progress here is SHAKE's, not the rounding floor: no stall
                 shake = 0
                 switched = 1
-                assemble_projection(s, n, shake, fl, md, st, dr)
+                assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
         if (res < sc.projection_tol or it >= sc.projection_iterations
                 or (it >= 1 and not switched and res < STALL_BELOW and res > 0.9 * previous)):
             break
-        solve_inextensibility(s, n, shake, fl, md, st, dr)
+        solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
         it += 1
     return it, res
 

@@ -32,11 +32,13 @@ class RodSystem:
     twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
     float32; 100). root: "clamped", "pinned", "edge" or "free" (see Simulator). integrator: "explicit"
-    or "implicit" (allocates the implicit step's arrays, see Simulator). Attributes: groom,
+    or "implicit" (allocates the implicit step's arrays, see Simulator); extensible: the edges
+    stretch with axial stiffness EA (see Simulator). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
     def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
-                 twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit"):
+                 twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit",
+                 extensible: bool = False):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
@@ -58,7 +60,7 @@ class RodSystem:
         if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
             raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
         self.model, self.state = build(groom, material, clamp=root == "clamped",
-                                       implicit=integrator == "implicit")
+                                       implicit=integrator == "implicit", extensible=bool(extensible))
         if root in ("edge", "free"):  # edge: node 1 rides on the head too; free: node 0 does not
             inv_mass = self.model.inv_mass.to_numpy()
             if root == "edge":

@@ -130,7 +130,8 @@ class Scene:
     of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
     integrator: "explicit" (default) or "implicit" (see Simulator); projection: the explicit
     step's projection, "fast" (default) or "shake" (see Simulator); root: how node 0 is held,
-    "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator)."""
+    "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator); extensible:
+    the edges stretch with axial stiffness EA (ropes, soft rods; see Simulator)."""
 
     groom: Groom
     material: object = field(default_factory=Material)
@@ -146,6 +147,7 @@ class Scene:
     integrator: str = "explicit"
     projection: str = "fast"
     root: str = "clamped"
+    extensible: bool = False
 
     def __post_init__(self):
         if self.root not in ROOT_MODES:
@@ -154,7 +156,7 @@ class Scene:
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
                             hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
                             integrator=self.integrator, strand_contact=self.strand_contact,
-                            projection=self.projection)
+                            projection=self.projection, extensible=self.extensible)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
@@ -167,11 +169,11 @@ class Scene:
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist,
                 "integrator": self.integrator, "strand_contact": self.strand_contact,
-                "root": self.root, "projection": self.projection}
+                "root": self.root, "projection": self.projection, "extensible": self.extensible}
 
 
 def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
-                        integrator="explicit", strand_contact=None, projection="fast"):
+                        integrator="explicit", strand_contact=None, projection="fast", extensible=False):
     """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
     parameter and what it allows. motion_name: what the caller calls the head motion."""
     if integrator not in INTEGRATORS:
@@ -181,6 +183,11 @@ def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_
     if projection == "shake" and integrator == "implicit":
         raise ValueError("projection='shake' is the explicit step's projection: it runs with "
                          "integrator='explicit' (the implicit step keeps energy by itself)")
+    if not isinstance(extensible, (bool, np.bool_)):
+        raise ValueError(f"extensible must be True or False, got {extensible!r}")
+    if extensible and integrator == "implicit":
+        raise ValueError("extensible=True runs with integrator='explicit' (the implicit step holds "
+                         "the edge lengths inside its solve)")
     if not isinstance(groom, Groom):
         raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
     if twist not in TWIST_MODES:
