@@ -261,8 +261,9 @@ def closest_params(a0, a1, b0, b1):
 
 
 def reference_pass(x, x_prev, inv_mass, pairs, radius, friction):
-    """One Jacobi contact pass in numpy, written from the PBD edge-edge response: (the moves of x
-    and dx [S, N, 3], the pairs acted on: those with a free node of nonzero weight)."""
+    """One Jacobi contact pass in numpy, written from the PBD edge-edge response with the push
+    shared p1 = s + sin(2 pi s) / (2 pi) (strand_contact.push_shares): (the moves of x and dx
+    [S, N, 3], the pairs acted on: those with a free node of nonzero weight)."""
     delta = np.zeros_like(x)
     hits = np.zeros(x.shape[:2], dtype=int)
     acted = 0
@@ -273,9 +274,11 @@ def reference_pass(x, x_prev, inv_mass, pairs, radius, friction):
     for k in range(len(keys)):
         nodes = [(sa[k], ja[k]), (sa[k], ja[k] + 1), (sb[k], jb[k]), (sb[k], jb[k] + 1)]
         w = np.array([1 - s[k], s[k], 1 - t[k], t[k]])
+        share_a, share_b = (u + np.sin(2 * np.pi * u) / (2 * np.pi) for u in (s[k], t[k]))
+        p = np.array([1 - share_a, share_a, 1 - share_b, share_b])
         sign = np.array([1, 1, -1, -1])
         im = np.array([inv_mass[n] for n in nodes])
-        W = (w**2 * im).sum()
+        W = (p * w * im).sum()
         if W == 0:
             continue
         acted += 1
@@ -298,8 +301,8 @@ def reference_pass(x, x_prev, inv_mass, pairs, radius, friction):
         else:
             push -= friction * depth * tangential / np.linalg.norm(tangential)
         for i in range(4):
-            if w[i] * im[i] > 0:
-                delta[nodes[i]] += sign[i] * w[i] * im[i] * push / W
+            if p[i] * im[i] > 0:
+                delta[nodes[i]] += sign[i] * p[i] * im[i] * push / W
                 hits[nodes[i]] += 1
     move = np.where(hits[..., None] > 0, delta / np.maximum(hits, 1)[..., None], 0.0)
     return move * (inv_mass > 0)[..., None], acted

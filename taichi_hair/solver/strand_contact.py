@@ -4,8 +4,8 @@ Every segment (the capsule of its strand's contact radius around nodes j and j +
 least r_a + r_b away from every other segment it may touch: segments of other strands, and with
 `self_contact` segments of its own strand further apart along it than the neighbour gap. One
 `ContactGrid.resolve` call is one Jacobi pass: it finds all overlapping segment pairs on a
-spatial hash grid (O(segments) on average) and moves their nodes apart, the standard PBD
-edge-edge response, with position-based Coulomb friction on the step's relative slip. The step
+spatial hash grid (O(segments) on average) and moves their nodes apart, the PBD edge-edge
+response (its push shared between a segment's nodes by `push_shares`), with position-based Coulomb friction on the step's relative slip. The step
 loop alternates it with the length projection (see step.strand_project), which is what turns
 the per-pair linearised pushes into a consistent configuration.
 
@@ -189,6 +189,24 @@ def _fill(seg_bucket: ti.template(), cursor: ti.template(), sorted_seg: ti.templ
 
 
 @ti.func
+def push_shares(s):
+    """(p0, p1): how a push at parameter s in [0, 1] of a segment is shared by its two nodes:
+    p1 = s + sin(2 pi s) / (2 pi), flat around the middle (p1' = 0 at s = 1/2) and all of it on
+    a node a contact sits at (p1(0) = 0, p1(1) = 1), increasing, continuous. Why not the
+    closest-point weights (1 - s, s), the usual PBD choice: with them a push off the middle of a
+    straight segment tilts it, towards the side the contact already sits on, so a segment
+    resting on a point is a seesaw the polyline invents. Two ropes crossing at the middles of
+    their segments (cosseratbench's crossing) slid off that balance with the asymmetry growing
+    e-fold every 0.16 s, from rounding to 8 mm, which was most of their 4.3e-3 shape error;
+    shares flat at the middle hold it (asymmetry at rounding after 8 s, shape error 8.4e-4).
+    Lumped shares (1/2, 1/2) hold it too, but push a node the contact is not near: a rope
+    piling on itself then heaped to 0.5 diameters instead of 1.5 (docs/model.md, "Strand
+    contact")."""
+    p1 = s + ti.sin(2.0 * math.pi * s) / (2.0 * math.pi)
+    return 1.0 - p1, p1
+
+
+@ti.func
 def _push(s, i, w, inv_mass: ti.template(), correction, delta: ti.template(), hits: ti.template()):
     """Add node (s, i)'s share w M_i^-1 correction of one pair, and count it, if it moves."""
     share = w * inv_mass[s, i]
@@ -210,13 +228,13 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     largest r_a + r_b - d [m] among contacts.
 
     mode RESOLVE: each contact adds its nodes' corrections to delta and counts them in hits
-    (cleared first): with closest-point weights w = (1 - s, s) on a and (1 - t, t) on b and
-    W = sum w_k^2 M_k^-1, node k moves by +-w_k M_k^-1 (lambda n + f / W), lambda = depth / W,
-    which moves the contact points apart by exactly depth along n (the linearised constraint)
-    and changes their relative displacement by f; f is the friction correction (with_friction),
-    minus the tangential slip since x_prev if shorter than friction x depth (static), else minus
-    friction x depth along it (kinetic). The corrections sum to zero momentum (sum of
-    w_k on a equals that on b). MEASURE: counters and penetration only. RECORD: also write
+    (cleared first): with closest-point weights w = (1 - s, s) on a and (1 - t, t) on b, push
+    shares p = push_shares(s) on a and push_shares(t) on b, and W = sum p_k w_k M_k^-1, node k
+    moves by +-p_k M_k^-1 (lambda n + f / W), lambda = depth / W, which moves the contact points
+    apart by exactly depth along n (the linearised constraint) and changes their relative
+    displacement by f; f is the friction correction (with_friction), minus the tangential slip
+    since x_prev if shorter than friction x depth (static), else minus friction x depth along it
+    (kinetic). The corrections sum to zero momentum (the shares on a and on b each sum to 1). MEASURE: counters and penetration only. RECORD: also write
     (g_a, g_b) of the first record.shape[0] contacts to record."""
     n_seg = x.shape[1] - 1
     counters[PAIRS] = 0
@@ -286,8 +304,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                                 d = -(pa - pb).dot(before.normalized())  # > 0: how far through
                             w_a0 = 1.0 - s
                             w_b0 = 1.0 - t
-                            W = (w_a0 * w_a0 * inv_mass[sa, ja] + s * s * inv_mass[sa, ja + 1]
-                                 + w_b0 * w_b0 * inv_mass[sb, jb] + t * t * inv_mass[sb, jb + 1])
+                            p_a0, p_a1 = push_shares(s)
+                            p_b0, p_b1 = push_shares(t)
+                            W = (p_a0 * w_a0 * inv_mass[sa, ja] + p_a1 * s * inv_mass[sa, ja + 1]
+                                 + p_b0 * w_b0 * inv_mass[sb, jb] + p_b1 * t * inv_mass[sb, jb + 1])
                             # W == 0: no free node takes a share (all four held, e.g. two
                             # clipped root segments side by side, or the closest point exactly
                             # on a held node of a segment touching a held one): nothing can
@@ -313,10 +333,10 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                                             correction -= tangential / W
                                         else:  # length > limit >= 0, so no division by zero
                                             correction -= (limit / length / W) * tangential
-                                    _push(sa, ja, w_a0, inv_mass, correction, delta, hits)
-                                    _push(sa, ja + 1, s, inv_mass, correction, delta, hits)
-                                    _push(sb, jb, w_b0, inv_mass, -correction, delta, hits)
-                                    _push(sb, jb + 1, t, inv_mass, -correction, delta, hits)
+                                    _push(sa, ja, p_a0, inv_mass, correction, delta, hits)
+                                    _push(sa, ja + 1, p_a1, inv_mass, correction, delta, hits)
+                                    _push(sb, jb, p_b0, inv_mass, -correction, delta, hits)
+                                    _push(sb, jb + 1, p_b1, inv_mass, -correction, delta, hits)
                                 if ti.static(mode == RECORD):
                                     slot = ti.atomic_add(counters[RECORDED], 1)
                                     if slot < record.shape[0]:
