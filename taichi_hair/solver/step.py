@@ -360,8 +360,9 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
     constraint (XPBD): diag + alpha_j / h^2 and C_j - alpha_j / h^2 Lambda_j, with Lambda_j =
     h^2 T_j / (2 |e|) the multiplier of the tension T_j [N] the step has applied so far
     (st.tension) and alpha_j = 2 |ebar| |e| (|e| + |ebar|) / EA, so that at convergence
-    T_j = EA (|e| - |ebar|) / |ebar| exactly (docs/model.md, "Extensible strands"). Returns (max_j of that residual / |ebar^j|^2 over the free edges,
-    1 if an edge has turned past SHAKE_TURN_COS from its G direction, else 0)."""
+    T_j = EA (|e| - |ebar|) / |ebar| exactly (docs/model.md, "Extensible strands"). Returns
+    (max_j of that residual / |ebar^j|^2 over the free edges, 1 if an edge has turned past
+    SHAKE_TURN_COS from its G direction, else 0)."""
     res = 0.0
     turned = 0
     b = slider_vector(s, n, fl, dr)
