@@ -5,9 +5,10 @@ least r_a + r_b away from every other segment it may touch: segments of other st
 `self_contact` segments of its own strand further apart along it than the neighbour gap. One
 `ContactGrid.resolve` call is one Jacobi pass: it finds all overlapping segment pairs on a
 spatial hash grid (O(segments) on average) and moves their nodes apart, the PBD edge-edge
-response (its push shared between a segment's nodes by `push_shares`), with position-based Coulomb friction on the step's relative slip. The step
-loop alternates it with the length projection (see step.strand_project), which is what turns
-the per-pair linearised pushes into a consistent configuration.
+response (its push shared between a segment's nodes by `push_shares`), with position-based
+Coulomb friction on the step's relative slip. The step loop alternates it with the length
+projection (see step.strand_project), which is what turns the per-pair linearised pushes into
+a consistent configuration.
 
 Shapes: S strands, N = max nodes per strand (arrays padded), G = S (N - 1) segment slots; the
 segment slot of (strand s, segment j) is g = s (N - 1) + j, joining nodes j and j + 1. SI units
@@ -234,7 +235,8 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     apart by exactly depth along n (the linearised constraint) and changes their relative
     displacement by f; f is the friction correction (with_friction), minus the tangential slip
     since x_prev if shorter than friction x depth (static), else minus friction x depth along it
-    (kinetic). The corrections sum to zero momentum (the shares on a and on b each sum to 1). MEASURE: counters and penetration only. RECORD: also write
+    (kinetic). The corrections sum to zero momentum (the shares on a and on b each sum to 1).
+    MEASURE: counters and penetration only. RECORD: also write
     (g_a, g_b) of the first record.shape[0] contacts to record."""
     n_seg = x.shape[1] - 1
     counters[PAIRS] = 0
