@@ -13,7 +13,9 @@ from . import arrays
 from .frames import update_frames, update_material_frames
 from .groom import Groom
 from .materials import per_strand_materials, stiffness_table
-from .rod import material_curvatures
+from .rod import material_curvatures, rotation_strains
+
+STRAINS = ("der", "rotation")  # the strain measures (rod.py; docs/model.md, "Strains from rotations")
 
 
 @dataclass(frozen=True)
@@ -26,8 +28,9 @@ class RodModel:
     clamp: the root is clamped (node 0 bends and twists against the head-carried root frame)
     (False: a hinge or a rigid first edge); stiffness vec4 [S] (EI1, EI2, GJ [N m^2], EA [N]: EA
     is read by extensible strands only);
-    rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1];
-    rest_twist [S, N] rad; mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
+    rest_kappa vec4 [S, N] (wbar_i^{i-1}, wbar_i^i) [1] under the DER measure, (wbar, 0) [rad]
+    under the rotation measure (strain "rotation": the rest rotation vector about m1, m2, t);
+    rest_twist [S, N] rad (DER only); mass [S, N] kg (rho A l_i, every node); root_frame vec3 [S, 4]:
     the root edge's two nodes [m], its unit tangent and its reference u (the root edge's rest
     material direction m1, so the clamp's angle is 0 and the first rest angle is 0), all in head
     coordinates (the rest pose)."""
@@ -44,6 +47,12 @@ class RodModel:
     rest_kappa: object
     rest_twist: object
     root_frame: object
+    strain: str = "der"
+
+    @property
+    def rotation(self) -> bool:
+        """The rotation strain measure (a compile-time switch of the energy kernels)."""
+        return self.strain == "rotation"
 
     @property
     def n_strands(self) -> int:
@@ -183,11 +192,12 @@ def align_to_curvature(kb: np.ndarray, bishop_u: np.ndarray, bishop_v: np.ndarra
 
 
 def build(groom: Groom, material, clamp: bool = True, implicit: bool = False,
-          extensible: bool = False) -> tuple[RodModel, RodState]:
+          extensible: bool = False, strain: str = "der") -> tuple[RodModel, RodState]:
     """Model and state for `groom` with `material` (one Material or one per strand), the state
     at the rest shape with rest material frames; clamp: node 0 bends against the root frame
     (root="clamped"; False for a hinge or a rigid first edge); implicit: allocate the implicit
-    step's arrays; extensible: allocate the edge tensions (Simulator(extensible=True)).
+    step's arrays; extensible: allocate the edge tensions (Simulator(extensible=True)); strain:
+    one of STRAINS, the strain measure whose rest values rest_kappa holds.
     Rest curvatures and twists are measured on the rest shape with the same kernels the
     simulation uses, so the rest shape has zero energy."""
     materials = per_strand_materials(material, groom.n_strands)
@@ -217,24 +227,34 @@ def build(groom: Groom, material, clamp: bool = True, implicit: bool = False,
     state.theta.from_numpy(rest_theta.astype(arrays.np_float()))
     update_material_frames(node_count, state.theta, state.bishop_u, state.bishop_v, state.m1, state.m2)
     rest_kappa = arrays.vectors(4, (groom.n_strands, groom.max_nodes))
-    material_curvatures(clamp, node_count, state.kb, state.m1, state.m2, state.root_t, state.root_u,
-                        rest_kappa)
+    stiffness = arrays.vectors(4, (groom.n_strands,), np.stack(
+        [table["ei1"], table["ei2"], table["gj"], table["axial"]], axis=1))
+    voronoi_lengths = arrays.scalars(voronoi.shape, voronoi)
+    if strain == "rotation":
+        if groom.rest_curvature is not None:
+            raise ValueError("this groom carries its own rest curvatures (e.g. from sag_free), which are "
+                             "the DER measure's: build it with strain='der'")
+        rotation_strains(clamp, node_count, state.kb, state.m1, state.m2, state.theta, stiffness,
+                         voronoi_lengths, rest_kappa)
+    else:
+        material_curvatures(clamp, node_count, state.kb, state.m1, state.m2, state.root_t, state.root_u,
+                            rest_kappa)
     if groom.rest_curvature is not None:  # e.g. a sag-free rest shape: not the groomed one
         rest_kappa.from_numpy(np.asarray(groom.rest_curvature).astype(arrays.np_float()))
     rest_twist = np.zeros((groom.n_strands, groom.max_nodes))
     rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
     if groom.rest_twist is not None:  # a sag-free rest shape holds the groomed angles in balance
         rest_twist = np.asarray(groom.rest_twist, dtype=np.float64)
-    stiffness = np.stack([table["ei1"], table["ei2"], table["gj"], table["axial"]], axis=1)
     model = RodModel(
         groom=groom, materials=tuple(materials), clamp=bool(clamp), node_count=node_count,
         rest_length=arrays.scalars(rest_length.shape, rest_length),
-        voronoi=arrays.scalars(voronoi.shape, voronoi),
+        voronoi=voronoi_lengths,
         inv_mass=arrays.scalars(inv_mass.shape, inv_mass),
         mass=arrays.scalars(mass.shape, mass),
-        stiffness=arrays.vectors(4, (groom.n_strands,), stiffness),
+        stiffness=stiffness,
         rest_kappa=rest_kappa, rest_twist=arrays.scalars(rest_twist.shape, rest_twist),
         root_frame=arrays.vectors(3, (groom.n_strands, 4), np.concatenate(
             [groom.positions[:, :2], root_t[:, None], root_u[:, None]], axis=1)),
+        strain=strain,
     )
     return model, state

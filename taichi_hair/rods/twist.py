@@ -20,6 +20,12 @@ Two modes (docs/model.md, "Twist"):
   modulo pi), choosing theta, theta + pi or theta - pi by the lowest local energy. Parallel
   per edge (Jacobi: neighbours' angles from before the update). Round strands have no axis to
   follow: they are solved exactly, as in `quasistatic`.
+
+Every function here takes `rotation` (ti.template): the strain measure (rod.py). Under the
+rotation measure node i's energy depends on theta^{i-1} and theta^i together (through their mean,
+which turns its mid frame, and their difference, its twist), so the Hessian stays tridiagonal; its
+indefinite fallback is the Gauss-Newton Hessian, positive semi-definite node by node and definite
+on the chain for the same reason as the DER one.
 """
 
 import taichi as ti
@@ -28,7 +34,7 @@ from .arrays import Ints1, Points2, Scalars2, Vec3s1, Vec3s2, Vec3s3, Vec4s1, Ve
 from .frames import material_directors
 from .linalg import back_substitute
 from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
-                  twist_terms)
+                  rotation_node_terms, twist_terms)
 from ..runtime import precision
 
 TWIST_MODES = ("kmoch", "quasistatic", "none")
@@ -71,19 +77,87 @@ def edge_bend_theta_terms(s, j, n, first, angle, bishop_u: ti.template(), bishop
 
 
 @ti.func
-def theta_energy(s, n, first, bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                 theta: ti.template(), rest_kappa: ti.template(), rest_twist: ti.template(),
-                 voronoi: ti.template(), k):
+def angle_before(s, i, theta: ti.template()):
+    """theta^{i-1} [rad]; the clamp's (edge -1) is 0."""
+    before = 0.0
+    if i >= 1:
+        before = theta[s, i - 1]
+    return before
+
+
+@ti.func
+def rotation_node_at(s, i, before, after, bishop_u: ti.template(), bishop_v: ti.template(),
+                     kb: ti.template(), rest_kappa: ti.template(), voronoi: ti.template(), k):
+    """rod.rotation_node_terms of node i with theta^{i-1} = before and theta^i = after: its mid
+    frame is edge i's Bishop frame turned by their mean (kb is normal to both edges, so edge i's
+    frame serves node 0 too, whose previous frame is the clamp)."""
+    mid1, mid2 = material_directors(bishop_u[s, i], bishop_v[s, i], 0.5 * (before + after))
+    return rotation_node_terms(kb[s, i], mid1, mid2, after - before, rest_kappa[s, i].xyz, k,
+                               1.0 / voronoi[s, i])
+
+
+@ti.func
+def rotation_edge_terms(s, j, n, first, angle, bishop_u: ti.template(), bishop_v: ti.template(),
+                        kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                        voronoi: ti.template(), k):
+    """Rotation measure: energy [J], dE/dtheta^j and d2E/dtheta^j2 of the nodes j and j+1 (the
+    terms involving edge j) with theta^j = angle, its neighbours as they are."""
+    energy = 0.0
+    grad = 0.0
+    hess = 0.0
+    if j >= first:  # node j: theta^j is its theta^i
+        _w, e, d, h, _gn, _g_kb = rotation_node_at(s, j, angle_before(s, j, theta), angle, bishop_u, bishop_v, kb,
+                                            rest_kappa, voronoi, k)
+        energy += e
+        grad += 0.5 * d.x + d.y
+        hess += 0.25 * h.x + h.y + h.z
+    if j + 1 <= n - 2:  # node j+1: theta^j is its theta^{i-1}
+        _w, e, d, h, _gn, _g_kb = rotation_node_at(s, j + 1, angle, theta[s, j + 1], bishop_u, bishop_v, kb,
+                                            rest_kappa, voronoi, k)
+        energy += e
+        grad += 0.5 * d.x - d.y
+        hess += 0.25 * h.x - h.y + h.z
+    return energy, grad, hess
+
+
+@ti.func
+def edge_theta_gradient(s, j, n, first, rotation: ti.template(), bishop_u: ti.template(),
+                        bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
+                        rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(), k):
+    """dE/dtheta^j [J/rad] at the angles as they are (bending and twist, either measure)."""
+    g = 0.0
+    if ti.static(rotation):
+        _, g, _ = rotation_edge_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb, theta,
+                                      rest_kappa, voronoi, k)
+    else:
+        _, gb, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                         rest_kappa, voronoi, k)
+        gt, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+        g = gb + gt
+    return g
+
+
+@ti.func
+def theta_energy(s, n, first, rotation: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
+                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+                 rest_twist: ti.template(), voronoi: ti.template(), k):
     """The part of strand s's energy [J] that depends on its material angles: every bending
-    term seen from an edge and every twist term (node 0's clamp-side bending term is constant)."""
+    term seen from an edge and every twist term (node 0's clamp-side bending term is constant);
+    rotation: every node's energy."""
     total = 0.0
-    for j in range(0, n - 1):
-        e, _, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
-                                        rest_kappa, voronoi, k)
-        total += e
-    for i in range(first, n - 1):
-        m = node_twist(s, i, theta, rest_twist)
-        total += 0.5 * k.z * m * m / voronoi[s, i]
+    if ti.static(rotation):
+        for i in range(first, n - 1):
+            _w, e, _d, _h, _gn, _g_kb = rotation_node_at(s, i, angle_before(s, i, theta), theta[s, i], bishop_u,
+                                                bishop_v, kb, rest_kappa, voronoi, k)
+            total += e
+    else:
+        for j in range(0, n - 1):
+            e, _, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                            rest_kappa, voronoi, k)
+            total += e
+        for i in range(first, n - 1):
+            m = node_twist(s, i, theta, rest_twist)
+            total += 0.5 * k.z * m * m / voronoi[s, i]
     return total
 
 
@@ -98,30 +172,53 @@ def edge_twist_held(s, j, clips: ti.template(), clip: ti.template()):
 
 
 @ti.func
-def assemble_newton(s, n, first, lo, clamp_bending, bishop_u: ti.template(), bishop_v: ti.template(),
-                    kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
+def assemble_newton(s, n, first, lo, clamp_bending, rotation: ti.template(), bishop_u: ti.template(),
+                    bishop_v: ti.template(), kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                     rest_twist: ti.template(), voronoi: ti.template(), k, grad: ti.template(),
                     diag: ti.template(), upper: ti.template(), clips: ti.template(), clip: ti.template()):
     """Gradient and tridiagonal Hessian of theta_energy on the free edges lo..n-2 (first: the
     first node that bends and twists; lo = first, or 0 for a free root, whose edge 0 is free too
     and whose Hessian is singular along a uniform turn of a round strand: GAUGE_DAMPING on edge
     0's diagonal fixes that gauge without biasing the minimum); clamp_bending = 1 clamps the
-    bending diagonal at 0. An edge whose twist a clip holds is not free: its row is the identity
-    with zero gradient. Returns the scaled residual max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the
-    edge's Voronoi span."""
+    bending diagonal at 0 (rotation: takes the Gauss-Newton Hessian). An edge whose twist a clip
+    holds is not free: its row is the identity with zero gradient. Returns the scaled residual
+    max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span."""
     scale = ti.max(k.x, k.z)
     res = 0.0
+    if ti.static(rotation):
+        for j in range(lo, n - 1):
+            grad[s, j] = 0.0
+            diag[s, j] = 0.0
+            upper[s, j] = 0.0
+        for i in range(first, n - 1):  # node i couples edges i-1 and i
+            _w, _e, d, h, gauss_newton, _g_kb = rotation_node_at(s, i, angle_before(s, i, theta), theta[s, i],
+                                                           bishop_u, bishop_v, kb, rest_kappa, voronoi, k)
+            if clamp_bending:
+                h = gauss_newton
+            if i - 1 >= lo:
+                grad[s, i - 1] += 0.5 * d.x - d.y
+                diag[s, i - 1] += 0.25 * h.x - h.y + h.z
+                upper[s, i - 1] = 0.25 * h.x - h.z
+            grad[s, i] += 0.5 * d.x + d.y
+            diag[s, i] += 0.25 * h.x + h.y + h.z
+        if lo < first:  # a free root's edge 0
+            diag[s, lo] *= 1.0 + GAUGE_DAMPING
     for j in range(lo, n - 1):
-        _, gb, hb = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
-                                          rest_kappa, voronoi, k)
-        gt, ht = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
-        if clamp_bending:
-            hb = ti.max(hb, 0.0)
-        grad[s, j] = gb + gt
-        diag[s, j] = hb + ht
-        if j < first:  # a free root's edge 0
-            diag[s, j] += GAUGE_DAMPING * ht
-        upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
+        g = 0.0
+        if ti.static(rotation):
+            g = grad[s, j]
+        else:
+            _, gb, hb = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
+                                              rest_kappa, voronoi, k)
+            gt, ht = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+            if clamp_bending:
+                hb = ti.max(hb, 0.0)
+            g = gb + gt
+            grad[s, j] = g
+            diag[s, j] = hb + ht
+            if j < first:  # a free root's edge 0
+                diag[s, j] += GAUGE_DAMPING * ht
+            upper[s, j] = -k.z / voronoi[s, j + 1]  # couples j and j+1 (unused for the last edge)
         span = 0.5 * voronoi[s, j + 1]
         if j >= first:
             span += 0.5 * voronoi[s, j]
@@ -132,7 +229,7 @@ def assemble_newton(s, n, first, lo, clamp_bending, bishop_u: ti.template(), bis
             if j > lo:
                 upper[s, j - 1] = 0.0
         else:
-            res = ti.max(res, ti.abs(gb + gt) * span / scale)
+            res = ti.max(res, ti.abs(g) * span / scale)
     return res
 
 
@@ -158,7 +255,8 @@ def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.temp
 
 
 @ti.func
-def line_search(s, first, lo, hi, e0, decrement, bishop_u: ti.template(), bishop_v: ti.template(),
+def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), bishop_u: ti.template(),
+                bishop_v: ti.template(),
                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                 rest_twist: ti.template(), voronoi: ti.template(), k, step: ti.template()):
     """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
@@ -179,7 +277,7 @@ def line_search(s, first, lo, hi, e0, decrement, bishop_u: ti.template(), bishop
         for j in range(lo, hi + 1):
             theta[s, j] -= (alpha - applied) * step[s, j]
         applied = alpha
-        e1 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
+        e1 = theta_energy(s, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
                           rest_twist, voronoi, k)
         predicted = alpha * decrement
         if e1 <= e0 - ARMIJO * predicted or (predicted <= slack and e1 <= e0 + slack):
@@ -193,7 +291,8 @@ def line_search(s, first, lo, hi, e0, decrement, bishop_u: ti.template(), bishop
 
 
 @ti.func
-def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), node_count: ti.template(),
+def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), rotation: ti.template(),
+                             node_count: ti.template(),
                              bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
                              theta: ti.template(), rest_kappa: ti.template(),
                              rest_twist: ti.template(), voronoi: ti.template(),
@@ -211,21 +310,21 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
     res = 0.0
     status = CONVERGED
     while True:
-        res = assemble_newton(s, n, first, lo, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+        res = assemble_newton(s, n, first, lo, 0, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
                               rest_twist, voronoi, k, grad, diag, upper, clips, clip)
         if res < tol:
             break
         if it >= max_iterations:
             status = CAPPED
             break
-        e0 = theta_energy(s, n, first, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
+        e0 = theta_energy(s, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
                           voronoi, k)
         positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
         if not positive:  # indefinite: a descent direction from the clamped bending diagonal
-            assemble_newton(s, n, first, lo, 1, bishop_u, bishop_v, kb, theta, rest_kappa,
+            assemble_newton(s, n, first, lo, 1, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
                             rest_twist, voronoi, k, grad, diag, upper, clips, clip)
             positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
-        moved = line_search(s, first, lo, n - 2, e0, decrement, bishop_u, bishop_v, kb, theta,
+        moved = line_search(s, first, lo, n - 2, e0, decrement, rotation, bishop_u, bishop_v, kb, theta,
                             rest_kappa, rest_twist, voronoi, k, grad)
         it += 1
         largest_angle = 0.0
@@ -233,7 +332,7 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
             largest_angle = ti.max(largest_angle, ti.abs(theta[s, j]))
         if moved <= 4.0 * ti.static(rounding_epsilon()) * (1.0 + largest_angle):
             # nothing representable is left to gain: the rounding floor of this precision
-            res = assemble_newton(s, n, first, lo, 0, bishop_u, bishop_v, kb, theta, rest_kappa,
+            res = assemble_newton(s, n, first, lo, 0, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
                                   rest_twist, voronoi, k, grad, diag, upper, clips, clip)
             if res >= tol:
                 status = STALLED
@@ -242,7 +341,7 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
 
 
 @ti.func
-def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.template(),
+def kmoch_edge_angle(s, j, n, first, rotation: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
                      kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                      rest_twist: ti.template(), voronoi: ti.template(), k):
     """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are."""
@@ -264,9 +363,14 @@ def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.templ
         best_energy = 0.0
         for c in ti.static(range(3)):
             angle = base + (c - 1) * PI
-            e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
-                                            voronoi, k)
-            e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
+            e = 0.0
+            if ti.static(rotation):
+                e, _, _ = rotation_edge_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, theta,
+                                              rest_kappa, voronoi, k)
+            else:
+                e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
+                                                voronoi, k)
+                e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
             if c == 0 or e < best_energy:
                 best = angle
                 best_energy = e
@@ -275,7 +379,8 @@ def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.templ
 
 
 @ti.func
-def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bishop_u: ti.template(),
+def strand_twist_kmoch(s, clamp: ti.template(), rotation: ti.template(), node_count: ti.template(),
+                       bishop_u: ti.template(),
                        bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
                        rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
                        stiffness: ti.template(), theta_new: ti.template()):
@@ -285,8 +390,8 @@ def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bisho
     first = ti.static(first_node(clamp))
     switches = 0
     for j in range(first, n - 1):
-        angle, switched = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                           rest_twist, voronoi, stiffness[s])
+        angle, switched = kmoch_edge_angle(s, j, n, first, rotation, bishop_u, bishop_v, kb, theta,
+                                           rest_kappa, rest_twist, voronoi, stiffness[s])
         theta_new[s, j] = angle
         switches += switched
     for j in range(first, n - 1):
@@ -309,7 +414,8 @@ def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: 
 
 
 @ti.func
-def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+def strand_kmoch_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.template(),
+                        node_count: ti.template(),
                         bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
                         theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
                         rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
@@ -328,10 +434,8 @@ def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: t
         suffix = 0.0
         for r in range(n - 1 - first):
             j = n - 2 - r
-            _, gb, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
-                                             rest_kappa, voronoi, k)
-            gt, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
-            g = gb + gt
+            g = edge_theta_gradient(s, j, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                    rest_twist, voronoi, k)
             suffix += g  # sum over free edges >= j: the coefficient of grad psi_j
             e0, e1 = node_edges(s, j, x, root_t)
             add_holonomy_gradient(s, j, e0, e1, kb[s, j], suffix, force)
@@ -353,18 +457,19 @@ def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: t
 
 
 @ti.kernel
-def kmoch_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
+def kmoch_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
                  bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
                  rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
                  force: Vec3s2):
     """strand_kmoch_forces for every strand (added to force [S, N] N). One thread per strand."""
     for s in range(x.shape[0]):
-        strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+        strand_kmoch_forces(s, clamp, rotation, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
                             rest_kappa, rest_twist, voronoi, stiffness, force)
 
 
 @ti.func
-def strand_held_twist_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
+def strand_held_twist_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.template(),
+                             node_count: ti.template(),
                              bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
                              theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
                              rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
@@ -381,20 +486,20 @@ def strand_held_twist_forces(s, clamp: ti.template(), x: ti.template(), node_cou
     first = ti.static(first_node(clamp))
     for c in range(first, n - 1):
         if edge_twist_held(s, c, True, clip):
-            _, gb, _ = edge_bend_theta_terms(s, c, n, first, theta[s, c], bishop_u, bishop_v, kb,
-                                             rest_kappa, voronoi, k)
-            gt, _ = twist_terms(s, c, n, first, theta, rest_twist, voronoi, k.z)
+            g = edge_theta_gradient(s, c, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                    rest_twist, voronoi, k)
             for i in range(first, c + 1):
                 e0, e1 = node_edges(s, i, x, root_t)
-                add_holonomy_gradient(s, i, e0, e1, kb[s, i], gb + gt, force)
+                add_holonomy_gradient(s, i, e0, e1, kb[s, i], g, force)
 
 
 @ti.kernel
-def held_twist_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
+def held_twist_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, node_count: Ints1,
+                      bishop_u: Vec3s2,
                       bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
                       rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
                       clip: Vec3s3, force: Vec3s2):
     """strand_held_twist_forces for every strand (added to force [S, N] N). One thread per strand."""
     for s in range(x.shape[0]):
-        strand_held_twist_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+        strand_held_twist_forces(s, clamp, rotation, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
                                  rest_kappa, rest_twist, voronoi, stiffness, clip, force)

@@ -108,6 +108,14 @@ class Simulator:
         a compliant constraint inside the same projection (docs/model.md "Extensible strands"):
         for ropes and soft rods whose stretch under load matters (cosseratbench's). Explicit
         integrator only.
+    strain: the strain measure of bending and twist (docs/model.md "Strains from rotations"):
+        "der" (default: Discrete Elastic Rods' curvature binormal 2 tan(phi/2) seen from each
+        edge's material frame, and the twist as a difference of angles) or "rotation" (the
+        rotation vector of the turn from one edge's material frame to the next, as Cosserat
+        codes measure strain: exact on discrete helices, so curled strands are accurate at coarse
+        resolution; a curled rod's tip 4x closer to the continuum at 50 segments). "rotation"
+        runs with the explicit integrator, and refuses grooms that carry their own (DER) rest
+        curvatures, as sag_free makes.
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -119,7 +127,7 @@ class Simulator:
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
                  integrator: str = "explicit", strand_contact=None, projection: str = "fast",
-                 extensible: bool = False):
+                 extensible: bool = False, strain: str = "der"):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
@@ -133,7 +141,8 @@ class Simulator:
             raise ValueError("integrator='implicit' needs a held root (root='clamped', 'pinned' or "
                              "'edge'); a free root (root='free') runs with integrator='explicit'")
         self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
-                              twist_iterations=twist_iterations, integrator=integrator, extensible=extensible)
+                              twist_iterations=twist_iterations, integrator=integrator, extensible=extensible,
+                              strain=strain)
         self.integrator = integrator
         self._history_h = None  # the step the implicit history was last seeded or stepped with
         self.model, self.state = self.rods.model, self.rods.state
@@ -164,7 +173,7 @@ class Simulator:
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
             twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection,
-            extensible=bool(extensible))
+            extensible=bool(extensible), strain=strain)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self.time = 0.0
@@ -517,7 +526,8 @@ class Simulator:
         residuals = self.state.residuals.to_numpy()
         report = {
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
-            "projection": self.plan.projection, "extensible": self.plan.extensible, "substeps": self.substeps,
+            "projection": self.plan.projection, "extensible": self.plan.extensible, "strain": self.plan.strain,
+            "substeps": self.substeps,
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),

@@ -76,6 +76,7 @@ class StepPlan:
     integrator: str = "explicit"  # one of world.scene.INTEGRATORS
     projection: str = "fast"  # one of world.scene.PROJECTIONS (explicit integrator)
     extensible: bool = False  # edges stretch with axial stiffness EA (explicit integrator)
+    strain: str = "der"  # one of rods.state.STRAINS (the rotation measure: explicit integrator)
 
     @property
     def pinned_root(self) -> bool:
@@ -131,7 +132,7 @@ class StageFlags:
     a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
     symplectic Euler; shake: the projection's constraint forces along the start-of-step edges
     (strand_project); stretch: the edges are compliant constraints with axial stiffness EA
-    (assemble_projection)."""
+    (assemble_projection); rotation: the rotation strain measure (rods/rod.py)."""
 
     external: bool
     wind_field: bool
@@ -147,6 +148,7 @@ class StageFlags:
     clips: bool = False
     shake: bool = False
     stretch: bool = False
+    rotation: bool = False
 
 
 @functools.lru_cache(maxsize=256)
@@ -157,7 +159,7 @@ def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
                  touch=plan.touch, pins=pins, root_mode=plan.root_mode,
                  implicit=plan.integrator == "implicit", clips=clips, shake=plan.projection == "shake",
-                 stretch=plan.extensible)
+                 stretch=plan.extensible, rotation=plan.strain == "rotation")
     flags.update(overrides)
     return StageFlags(**flags)
 
@@ -488,7 +490,8 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
             if md.stiffness[s].x != md.stiffness[s].y:
                 exact = 0
         if exact:
-            it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == 3), md.node_count,
+            it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == 3), fl.rotation,
+                                                    md.node_count,
                                                     st.bishop_u, st.bishop_v, st.kb, st.theta,
                                                     md.rest_kappa, md.rest_twist, md.voronoi,
                                                     md.stiffness, sc.twist_tol, sc.twist_iterations,
@@ -503,7 +506,7 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
         elif ti.static(fl.twist_mode == 1):
-            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
+            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, fl.rotation, md.node_count, st.bishop_u,
                                                                st.bishop_v, st.kb, st.theta, md.rest_kappa,
                                                                md.rest_twist, md.voronoi, md.stiffness, st.diag)
         strand_material_frames(s, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
@@ -520,13 +523,13 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
     """force = elastic (with Kmoch's rule's total-derivative term) + gravity, drag, wind, grabs
     + user forces."""
     clamp = ti.static(fl.root_mode == 0)
-    strand_elastic_forces(s, clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
-                          md.rest_kappa, md.voronoi, md.stiffness, st.force)
+    strand_elastic_forces(s, clamp, fl.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta,
+                          st.root_t, st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
     if ti.static(fl.twist_mode == 1):
-        strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+        strand_kmoch_forces(s, clamp, fl.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                             st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
     if ti.static(fl.clips):
-        strand_held_twist_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+        strand_held_twist_forces(s, clamp, fl.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                                  st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, dr.clip,
                                  st.force)
     if ti.static(fl.implicit):
@@ -935,10 +938,10 @@ def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
     rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
     md, st = model, state
     kappa = md.rest_kappa if rest_kappa is None else rest_kappa
-    elastic_forces(md.clamp, st.x, md.node_count, st.kb, st.m1, st.m2, st.root_t, st.root_u,
-                   kappa, md.voronoi, md.stiffness, st.force)
+    elastic_forces(md.clamp, md.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
+                   st.root_u, kappa, md.voronoi, md.stiffness, st.force)
     if twist == "kmoch":
-        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+        kmoch_forces(md.clamp, md.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                      st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 
@@ -950,7 +953,8 @@ def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: flo
         return
     flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
                        moving_head=False, contacts=False, mesh=False, touch=False,
-                       pins=clip_arrays is not None, root_mode=ROOT_CODES[root], clips=clip_arrays is not None)
+                       pins=clip_arrays is not None, root_mode=ROOT_CODES[root], clips=clip_arrays is not None,
+                       rotation=bundles.rods[0].rotation)
     update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state,
                         bundles.twist_drive(clip_arrays))
 

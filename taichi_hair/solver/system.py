@@ -13,7 +13,7 @@ from ..rods.materials import per_strand_materials
 from ..world.scene import ROOT_MODES
 from ..rods.rod import first_node, strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
-from ..rods.state import COUNTERS, build
+from ..rods.state import COUNTERS, STRAINS, build
 from .step import StepBundles, run_twist_update, stiffness_blocks, total_elastic_forces
 from ..world.scene import INTEGRATORS
 from ..rods.twist import TWIST_MODES, held_twist_forces
@@ -25,6 +25,11 @@ IMPLICIT_KMOCH_REFUSAL = (
     "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
     "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
 
+IMPLICIT_ROTATION_REFUSAL = (
+    "strain='rotation' runs with integrator='explicit': the implicit step's stiffness matrix is the "
+    "DER measure's Hessian (use strain='der' with the implicit step; docs/model.md, \"Strains from "
+    "rotations\")")
+
 
 class RodSystem:
     """The rods of `groom` made of `material` (one Material or one per strand).
@@ -33,12 +38,13 @@ class RodSystem:
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
     float32; 100). root: "clamped", "pinned", "edge" or "free" (see Simulator). integrator: "explicit"
     or "implicit" (allocates the implicit step's arrays, see Simulator); extensible: the edges
-    stretch with axial stiffness EA (see Simulator). Attributes: groom,
+    stretch with axial stiffness EA (see Simulator); strain: the strain measure, "der" or
+    "rotation" (see Simulator; the implicit integrator needs "der"). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
     def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
                  twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit",
-                 extensible: bool = False):
+                 extensible: bool = False, strain: str = "der"):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
@@ -50,17 +56,22 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        if strain not in STRAINS:
+            raise ValueError(f"strain must be one of {STRAINS}, got {strain!r}")
+        if strain == "rotation" and integrator == "implicit":
+            raise ValueError(IMPLICIT_ROTATION_REFUSAL)
         if integrator == "implicit" and twist == "kmoch" and any(
                 m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)):
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
             raise ValueError(IMPLICIT_KMOCH_REFUSAL)
-        self.groom, self.twist, self.root, self.integrator = groom, twist, root, integrator
+        self.groom, self.twist, self.root, self.integrator, self.strain = groom, twist, root, integrator, strain
         self.twist_iterations = int(twist_iterations)
         self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
         if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
             raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
         self.model, self.state = build(groom, material, clamp=root == "clamped",
-                                       implicit=integrator == "implicit", extensible=bool(extensible))
+                                       implicit=integrator == "implicit", extensible=bool(extensible),
+                                       strain=strain)
         if root in ("edge", "free"):  # edge: node 1 rides on the head too; free: node 0 does not
             inv_mass = self.model.inv_mass.to_numpy()
             if root == "edge":
@@ -168,7 +179,7 @@ class RodSystem:
     def strand_elastic_energy(self) -> np.ndarray:
         """Elastic energy of each strand [S] in joules, material angles as they are."""
         st, md = self.state, self.model
-        strand_elastic_energy(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
+        strand_elastic_energy(md.clamp, md.rotation, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
                               st.root_u, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
                               st.strand_scalar)
         return st.strand_scalar.to_numpy().astype(np.float64)
@@ -190,7 +201,7 @@ class RodSystem:
         total_elastic_forces(self.model, self.state, self.twist, rest_kappa)
         if clip is not None:
             md, st = self.model, self.state
-            held_twist_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+            held_twist_forces(md.clamp, md.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                               st.root_t, md.rest_kappa if rest_kappa is None else rest_kappa,
                               md.rest_twist, md.voronoi, md.stiffness, clip, st.force)
         return self.state.force.to_numpy().astype(np.float64)
@@ -234,7 +245,7 @@ class RodSystem:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
         st, md = self.state, self.model
         out = st.scratch_edge[0]
-        theta_gradient(md.clamp, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
+        theta_gradient(md.clamp, md.rotation, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
                        md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
         return out.to_numpy().astype(np.float64)
 
