@@ -405,7 +405,7 @@ def _probe_rods(groom, material, twist, root):
     """The groom's rods (no stepping, no gravity: forces are elastic), built for this solve: its
     rest curvature is the solve's unknown, set each round (_set_rest_curvature)."""
     from ..solver.system import RodSystem
-    return RodSystem(groom, material, twist=twist, root=root)
+    return RodSystem(groom, material, twist=twist, root=root, strain="der")  # the rest values solved for are DER's
 
 
 def _set_rest_curvature(sim, wbar):

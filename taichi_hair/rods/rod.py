@@ -76,10 +76,10 @@ def rotation_scalars(a2, sn, c):
     (G, P, Q, Z): P = (1 - G c/2) / rho^2 (so dG/dm = sn P), Q = dG/d(rho^2) at fixed c (so
     dG/dk = Q k / 2), Z = (G/4 - 3 P c/2) / rho^2 (so dP/dm = sn Z); series below SERIES_BELOW."""
     rho2 = a2 + sn * sn
-    G = 0.0
-    P = 0.0
-    Q = 0.0
-    Z = 0.0
+    G = 0.0 * rho2  # of the arguments' type (the implicit step calls this in float64)
+    P = 0.0 * rho2
+    Q = 0.0 * rho2
+    Z = 0.0 * rho2
     limit = ti.static(SERIES_BELOW[precision()])
     if c > 0.0 and rho2 < limit * limit * c * c:
         x2 = rho2 / (c * c)

@@ -230,10 +230,7 @@ def build(groom: Groom, material, clamp: bool = True, implicit: bool = False,
     stiffness = arrays.vectors(4, (groom.n_strands,), np.stack(
         [table["ei1"], table["ei2"], table["gj"], table["axial"]], axis=1))
     voronoi_lengths = arrays.scalars(voronoi.shape, voronoi)
-    if strain == "rotation":
-        if groom.rest_curvature is not None:
-            raise ValueError("this groom carries its own rest curvatures (e.g. from sag_free), which are "
-                             "the DER measure's: build it with strain='der'")
+    if strain == "rotation":  # (a groom's own rest curvatures are DER's: solver.system.resolve_strain)
         rotation_strains(clamp, node_count, state.kb, state.m1, state.m2, state.theta, stiffness,
                          voronoi_lengths, rest_kappa)
     else:

@@ -109,13 +109,14 @@ class Simulator:
         for ropes and soft rods whose stretch under load matters (cosseratbench's). Explicit
         integrator only.
     strain: the strain measure of bending and twist (docs/model.md "Strains from rotations"):
-        "der" (default: Discrete Elastic Rods' curvature binormal 2 tan(phi/2) seen from each
-        edge's material frame, and the twist as a difference of angles) or "rotation" (the
-        rotation vector of the turn from one edge's material frame to the next, as Cosserat
-        codes measure strain: exact on discrete helices, so curled strands are accurate at coarse
-        resolution; a curled rod's tip 4x closer to the continuum at 50 segments). "rotation"
-        runs with the explicit integrator, and refuses grooms that carry their own (DER) rest
-        curvatures, as sag_free makes.
+        "rotation" (the rotation vector of the turn from one edge's material frame to the next,
+        as Cosserat codes measure strain: exact on discrete helices, so curled strands are
+        accurate at coarse resolution: a curled rod's tip 4x closer to the continuum at 50
+        segments than with "der"), "der" (Discrete Elastic Rods' curvature binormal
+        2 tan(phi/2) seen from each edge's material frame and the twist as a difference of
+        angles, the measure before 2026-12-03, kept to compare) or None (default: "rotation",
+        but "der" for a groom that carries its own rest curvatures, which are DER's: sag_free
+        makes them). `sim.strain` says which. Both integrators run both.
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
@@ -127,7 +128,7 @@ class Simulator:
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
                  integrator: str = "explicit", strand_contact=None, projection: str = "fast",
-                 extensible: bool = False, strain: str = "der"):
+                 extensible: bool = False, strain: str | None = None):
         ensure_init()
         _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
                          wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
@@ -144,6 +145,7 @@ class Simulator:
                               twist_iterations=twist_iterations, integrator=integrator, extensible=extensible,
                               strain=strain)
         self.integrator = integrator
+        self.strain = self.rods.strain
         self._history_h = None  # the step the implicit history was last seeded or stepped with
         self.model, self.state = self.rods.model, self.rods.state
         self._pins = PinTable(self.model, root)
@@ -173,7 +175,7 @@ class Simulator:
             projection_iterations=projection_iterations,
             twist_tol=self.rods.twist_tol,
             twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection,
-            extensible=bool(extensible), strain=strain)
+            extensible=bool(extensible), strain=self.rods.strain)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self.time = 0.0

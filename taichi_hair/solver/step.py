@@ -990,10 +990,11 @@ def seed_history(h: float, node_count: Ints1, v: Vec3s2, history: Vec3s3, tensio
 
 
 @ti.kernel
-def stiffness_blocks(clamp: ti.template(), twist_free: ti.template(), md: ModelArgs, st: StateArgs):
+def stiffness_blocks(clamp: ti.template(), twist_free: ti.template(), rotation: ti.template(), md: ModelArgs,
+                     st: StateArgs):
     """st.blocks = the implicit step's Gauss-Newton stiffness of every strand over the free
     nodes' positions [N/m] and the free edges' angles (implicit.assemble_stiffness; blocks as
     in linalg.block_pentadiagonal_solve) at the current frames. One thread per strand."""
     for s in range(st.x.shape[0]):
         clear_system(s, md.node_count[s], True, st)
-        assemble_stiffness(s, clamp, twist_free, 1.0, md, st, 0)
+        assemble_stiffness(s, clamp, twist_free, rotation, 1.0, md, st, 0)

@@ -25,10 +25,18 @@ IMPLICIT_KMOCH_REFUSAL = (
     "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
     "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
 
-IMPLICIT_ROTATION_REFUSAL = (
-    "strain='rotation' runs with integrator='explicit': the implicit step's stiffness matrix is the "
-    "DER measure's Hessian (use strain='der' with the implicit step; docs/model.md, \"Strains from "
-    "rotations\")")
+def resolve_strain(strain, groom: Groom) -> str:
+    """The strain measure of `strain` ("der", "rotation", or None: "rotation", unless the groom
+    carries its own rest curvatures, which are the DER measure's (sag_free makes them))."""
+    if strain is None:
+        return "der" if groom.rest_curvature is not None else "rotation"
+    if strain not in STRAINS:
+        raise ValueError(f"strain must be one of {STRAINS} or None (rotation, or der for a groom with "
+                         f"its own rest curvatures), got {strain!r}")
+    if strain == "rotation" and groom.rest_curvature is not None:
+        raise ValueError("strain='rotation' cannot take this groom's own rest curvatures (e.g. from "
+                         "sag_free): they are the DER measure's; use strain='der' or strain=None")
+    return strain
 
 
 class RodSystem:
@@ -38,13 +46,13 @@ class RodSystem:
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
     float32; 100). root: "clamped", "pinned", "edge" or "free" (see Simulator). integrator: "explicit"
     or "implicit" (allocates the implicit step's arrays, see Simulator); extensible: the edges
-    stretch with axial stiffness EA (see Simulator); strain: the strain measure, "der" or
-    "rotation" (see Simulator; the implicit integrator needs "der"). Attributes: groom,
+    stretch with axial stiffness EA (see Simulator); strain: the strain measure, "rotation",
+    "der" or None (see Simulator, resolve_strain). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
     def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
                  twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit",
-                 extensible: bool = False, strain: str = "der"):
+                 extensible: bool = False, strain: str | None = None):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
@@ -56,10 +64,7 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        if strain not in STRAINS:
-            raise ValueError(f"strain must be one of {STRAINS}, got {strain!r}")
-        if strain == "rotation" and integrator == "implicit":
-            raise ValueError(IMPLICIT_ROTATION_REFUSAL)
+        strain = resolve_strain(strain, groom)
         if integrator == "implicit" and twist == "kmoch" and any(
                 m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)):
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
@@ -217,7 +222,8 @@ class RodSystem:
         integrator="implicit"."""
         if self.integrator != "implicit":
             raise ValueError('bending_stiffness needs a RodSystem built with integrator="implicit"')
-        stiffness_blocks(self.model.clamp, self.twist != "none", self.bundles.model, self.bundles.state)
+        stiffness_blocks(self.model.clamp, self.twist != "none", self.model.rotation, self.bundles.model,
+                         self.bundles.state)
         blocks = self.state.blocks.to_numpy().astype(np.float64)
         s_count, n_max = blocks.shape[:2]
         inv_mass = self.model.inv_mass.to_numpy()
