@@ -46,7 +46,7 @@ _FONT = {c: np.array([[b == "1" for b in row] for row in g.split()]) for c, g in
 GLYPH_W, GLYPH_H, ADVANCE = 5, 7, 6  # font pixels (before scaling)
 MARKERS = ("o", "s", "^", "D", "x")
 PALETTE = ((31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14),
-           (23, 190, 207), (140, 86, 75), (227, 119, 194))
+           (23, 190, 207), (140, 86, 75), (227, 119, 194), (188, 189, 34), (127, 127, 127))
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -29,10 +29,14 @@ def relative_error(force, minus_grad, groom):
     return np.abs(force[mask] - minus_grad[mask]).max() / scale
 
 
+STRAINS = ("rotation", "der")  # the strain measures (rods/rod.py): every energy check runs both
+
+
+@pytest.mark.parametrize("strain", STRAINS)
 @pytest.mark.parametrize("ellipticity", [1.0, 1.6])
-def test_forces_are_minus_energy_gradient_at_fixed_angles(ellipticity):
+def test_forces_are_minus_energy_gradient_at_fixed_angles(ellipticity, strain):
     groom = mixed_groom()
-    sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="none")
+    sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="none", strain=strain)
     x0 = perturbed(sim.positions(), 2e-3, seed=1)  # random: bends, twists and stretches edges
     rng = np.random.default_rng(2)
     sim.set_material_angles(sim.material_angles() + 0.4 * rng.standard_normal(sim.material_angles().shape))
@@ -45,14 +49,15 @@ def test_forces_are_minus_energy_gradient_at_fixed_angles(ellipticity):
 
     grad = central_difference_gradient(energy, x0, real_nodes(groom))
     err = relative_error(force, -grad, groom)
-    print(f"fixed angles, ellipticity {ellipticity}: max relative error {err:.2e}")
+    print(f"{strain}, fixed angles, ellipticity {ellipticity}: max relative error {err:.2e}")
     assert err < 1e-6
 
 
+@pytest.mark.parametrize("strain", STRAINS)
 @pytest.mark.parametrize("ellipticity", [1.0, 1.6])
-def test_total_force_at_quasistatic_twist_equilibrium(ellipticity):
+def test_total_force_at_quasistatic_twist_equilibrium(ellipticity, strain):
     groom = mixed_groom()
-    sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="quasistatic")
+    sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="quasistatic", strain=strain)
     x0 = perturbed(sim.positions(), 2e-3, seed=3)
     sim.set_positions(x0)
     sim.update_twist()
@@ -66,13 +71,14 @@ def test_total_force_at_quasistatic_twist_equilibrium(ellipticity):
 
     grad = central_difference_gradient(energy, x0, real_nodes(groom))
     err = relative_error(force, -grad, groom)
-    print(f"twist equilibrium, ellipticity {ellipticity}: max relative error {err:.2e}")
+    print(f"{strain}, twist equilibrium, ellipticity {ellipticity}: max relative error {err:.2e}")
     assert err < 1e-6
 
 
-def test_theta_gradient_matches_finite_differences():
+@pytest.mark.parametrize("strain", STRAINS)
+def test_theta_gradient_matches_finite_differences(strain):
     groom = mixed_groom()
-    sim = th.Simulator(groom, th.Material(ellipticity=1.4), twist="none")
+    sim = th.Simulator(groom, th.Material(ellipticity=1.4), twist="none", strain=strain)
     sim.set_positions(perturbed(sim.positions(), 2e-3, seed=4))
     theta0 = sim.material_angles() + 0.3
     sim.set_material_angles(theta0)
@@ -90,10 +96,11 @@ def test_theta_gradient_matches_finite_differences():
             assert abs(fd - analytic[s, j]) <= 1e-6 * np.abs(analytic).max() + 1e-14
 
 
-def test_rest_shape_has_zero_energy_and_force():
+@pytest.mark.parametrize("strain", STRAINS)
+def test_rest_shape_has_zero_energy_and_force(strain):
     groom = mixed_groom()
     for ellipticity in (1.0, 1.6):
-        sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="quasistatic")
+        sim = th.Simulator(groom, th.Material(ellipticity=ellipticity), twist="quasistatic", strain=strain)
         bend_scale = sim.model.materials[0].bending_stiffness[0] / 0.01
         assert sim.elastic_energy() < 1e-20
         assert np.abs(sim.elastic_forces()).max() < 1e-12 * bend_scale
@@ -101,9 +108,10 @@ def test_rest_shape_has_zero_energy_and_force():
         assert sim.elastic_energy() < 1e-20
 
 
-def test_energy_invariant_under_rigid_motion():
+@pytest.mark.parametrize("strain", STRAINS)
+def test_energy_invariant_under_rigid_motion(strain):
     groom = mixed_groom()
-    sim = th.Simulator(groom, th.Material(ellipticity=1.6), twist="quasistatic")
+    sim = th.Simulator(groom, th.Material(ellipticity=1.6), twist="quasistatic", strain=strain)
     x = perturbed(sim.positions(), 2e-3, seed=5)
     sim.set_positions(x)
     sim.update_twist()

@@ -48,17 +48,21 @@ def strandwise_gradient(sim, x0, h, settle):
     return grad
 
 
+STRAINS = ("rotation", "der")  # both strain measures (rods/rod.py)
+
+
 def quasistatic(groom, materials, **options):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return th.Simulator(groom, materials, twist="quasistatic", **options)
 
 
-def test_forces_are_the_gradient_at_twist_equilibrium_on_elliptic_helices():
+@pytest.mark.parametrize("strain", STRAINS)
+def test_forces_are_the_gradient_at_twist_equilibrium_on_elliptic_helices(strain):
     """Central differences of the energy re-solved at twist equilibrium, per strand (strands
     are independent, so one perturbation of node i on every strand gives all their columns)."""
     groom, materials, x0 = random_helices(52, seed=14)
-    sim = quasistatic(groom, materials)
+    sim = quasistatic(groom, materials, strain=strain)
     sim.set_positions(x0)
     solve = sim.update_twist()
     assert solve["residual"] < 1e-10 and solve["cap_hits"] == 0
@@ -75,7 +79,7 @@ def test_forces_are_the_gradient_at_twist_equilibrium_on_elliptic_helices():
     scale = np.abs(force).max(axis=(1, 2))
     assert scale.min() > 1e-9, "vacuous: a strand has no force"
     worst = (np.abs(force + grad).max(axis=(1, 2)) / scale).max()
-    print(f"\n{groom.n_strands} elliptic helices, worst relative error {worst:.2e}; Newton "
+    print(f"\n{strain}: {groom.n_strands} elliptic helices, worst relative error {worst:.2e}; Newton "
           f"iterations per solve: median {np.median(iterations):.0f}, max {max(iterations)}")
     assert worst <= 1e-6
 
@@ -123,14 +127,15 @@ def test_shaken_elliptic_curls_never_hit_the_cap():
     assert stats["twist_cap_hits"] == 0 and stats["twist_residual_max"] < 1e-6
 
 
-def test_kmoch_forces_are_the_total_derivative_of_the_energy():
+@pytest.mark.parametrize("strain", STRAINS)
+def test_kmoch_forces_are_the_total_derivative_of_the_energy(strain):
     """Under Kmoch's rule the angles follow the centreline: the force must be minus the gradient
     of E(x, theta_kmoch(x)), the rule applied (Jacobi, from the same old angles) at every x."""
     groom, _, x0 = random_helices(12, seed=7)
     materials = [th.Material(ellipticity=e) for e in (1.0, 1.3, 1.7, 2.5, 4.0, 1.5) * 2]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        sim = th.Simulator(groom, materials, twist="kmoch")
+        sim = th.Simulator(groom, materials, twist="kmoch", strain=strain)
     sim.set_positions(x0)
     sim.update_twist()
     old = sim.material_angles()
@@ -145,7 +150,7 @@ def test_kmoch_forces_are_the_total_derivative_of_the_energy():
     scale = np.abs(force).max(axis=(1, 2))
     assert scale.min() > 1e-9
     errors = np.abs(force + grad).max(axis=(1, 2)) / scale
-    print(f"\nKmoch's rule, worst relative error {errors.max():.2e} (round strands solved exactly)")
+    print(f"\n{strain}: Kmoch's rule, worst relative error {errors.max():.2e} (round strands solved exactly)")
     assert errors.max() <= 1e-6
 
 

@@ -15,9 +15,11 @@ a warm-up run of the same configuration, so compile time is excluded):
               rho 1300) hanging with its helix axis down / horizontal, at rest after damping, vs the
               continuum Kirchhoff rod with intrinsic curvature and twist (taichi_hair.rods.continuum,
               numpy shooting, independent of the simulator); error = |tip - tip_ref| / |drop|,
-              drop = the reference tip's displacement under gravity. Rows "curl ... edge" run the
-              same strand with root="edge" (the first edge held rigid: the model before the clamp
-              moved to the root node), side by side.
+              drop = the reference tip's displacement under gravity. Side by side: "curl ..." with
+              the rotation strain measure (strain="rotation", the default), "curl ... der" with the
+              DER measure (strain="der", the measure before), "curl ... edge" with DER and
+              root="edge" (the first edge held rigid: the model before the clamp moved to the root
+              node).
 Each precision runs in its own process (Taichi fixes it at init), as `python -m taichi_hair.app.reports
 accuracy --worker --precision float32`, and the rows are merged.
 
@@ -339,19 +341,24 @@ def _settle_until_still(sim):
     return motion
 
 
-def curl_row(n: int, dt: float, axis: str, repeats: int = 1, root: str = "clamped") -> dict:
-    """The curled rod hanging with its axis `axis`, at rest, against the continuum; root as in
-    Simulator ("edge" rows are named "curl <axis> edge")."""
+CURL_VARIANTS = {"": ("clamped", "rotation"), " der": ("clamped", "der"), " edge": ("edge", "der")}
+
+
+def curl_row(n: int, dt: float, axis: str, repeats: int = 1, root: str = "clamped",
+             strain: str = "rotation") -> dict:
+    """The curled rod hanging with its axis `axis`, at rest, against the continuum; root and
+    strain as in Simulator (the row is named "curl <axis>" + its CURL_VARIANTS suffix)."""
     m = curl_material()
 
     def make():
         return _simulator(curl_groom(n, axis), m, dt=dt, drag=2 * m.linear_density * CURL_OMEGA,
-                          twist="quasistatic", root=root)
+                          twist="quasistatic", root=root, strain=strain)
     timed = _timed(make, _settle_until_still, repeats)
     ref = curl_reference(axis)
     tip = timed[0].positions()[0, n]
-    case = f"curl {axis}" + (" edge" if root == "edge" else "")
-    return _row(case, n, dt, "quasistatic", timed, settle=timed[2] / CURL_LENGTH, root=root,
+    suffix = next(k for k, v in CURL_VARIANTS.items() if v == (root, strain))
+    return _row(f"curl {axis}{suffix}", n, dt, "quasistatic", timed, settle=timed[2] / CURL_LENGTH, root=root,
+                strain=strain,
                 error=float(np.linalg.norm(tip - ref["tip"]) / ref["drop"]))
 
 
@@ -373,9 +380,9 @@ def accuracy_specs(sweep: AccuracySweep) -> list:
     steps at dt_segments (helix: for each twist mode)."""
     specs = []
     for axis in CURL_AXES:  # segment counts only: the reference is static
-        for root in ("clamped", "edge"):
+        for root, strain in CURL_VARIANTS.values():
             specs += [{"case": "curl", "n": n, "dt": sweep.base_dt, "axis": axis, "root": root,
-                       "repeats": sweep.repeats} for n in sweep.curl_segments]
+                       "strain": strain, "repeats": sweep.repeats} for n in sweep.curl_segments]
     cases = (("cantilever", sweep.cantilever_segments, ("none",)),
              ("frequency", sweep.frequency_segments, ("none",)), ("helix", sweep.helix_segments, sweep.twists))
     for case, segments, twists in cases:
@@ -389,7 +396,7 @@ def accuracy_row(spec: dict) -> dict:
     """The row of one spec, in this process's precision."""
     n, dt, k = spec["n"], spec["dt"], spec["repeats"]
     if spec["case"] == "curl":
-        return curl_row(n, dt, spec["axis"], k, spec["root"])
+        return curl_row(n, dt, spec["axis"], k, spec["root"], spec.get("strain", "rotation"))
     if spec["case"] == "helix":
         return helix_row(n, dt, spec["twist"], k)
     return cantilever_row(n, dt, k) if spec["case"] == "cantilever" else frequency_row(n, dt, k)
@@ -496,6 +503,7 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
 
 CASE_COLOURS = {("cantilever", "none"): 0, ("frequency", "none"): 2, ("helix", "quasistatic"): 1,
                 ("helix", "kmoch"): 3, ("curl down", "quasistatic"): 5, ("curl horizontal", "quasistatic"): 6,
+                ("curl down der", "quasistatic"): 8, ("curl horizontal der", "quasistatic"): 9,
                 ("curl down edge", "quasistatic"): 7, ("curl horizontal edge", "quasistatic"): 4}
 
 

@@ -483,6 +483,8 @@ def add_parser(sub):
                    help="override the scene's integrator (implicit: no stability bound, docs/model.md)")
     p.add_argument("--projection", default=None, choices=PROJECTIONS,
                    help="override the explicit step's projection (shake: keeps an undamped swing's energy)")
+    p.add_argument("--strain", default=None, choices=["rotation", "der"],
+                   help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md)")
     p.add_argument("--no-progress", action="store_true")
     cluster.add_arguments(p)
     p.set_defaults(func=main)
@@ -497,8 +499,8 @@ def shot_overrides(args) -> dict:
 def main(args) -> int:
     options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
                    overrides=shot_overrides(args),
-                   settings={k: v for k, v in (("integrator", args.integrator),
-                                               ("projection", args.projection)) if v} or None)
+                   settings={k: v for k, v in (("integrator", args.integrator), ("projection", args.projection),
+                                               ("strain", args.strain)) if v} or None)
     if cluster.wanted(args):
         with cluster.client_from_args(args) as client:
             summary = cluster.run_scene(client, args.scene, args.out, usd=args.usd, **options)

@@ -10,7 +10,10 @@ from .forces import Grab, Hand, Wind
 from ..rods.groom import Groom
 from .forces import HairInteraction, StrandContact
 from ..rods.materials import Material, per_strand_materials
+from ..rods.state import STRAINS
 from ..rods.twist import TWIST_MODES
+
+STRAIN_CHOICES = (None,) + STRAINS  # None: rotation, or der for a groom with its own rest curvatures
 
 COLLIDERS = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 
@@ -131,7 +134,9 @@ class Scene:
     integrator: "explicit" (default) or "implicit" (see Simulator); projection: the explicit
     step's projection, "fast" (default) or "shake" (see Simulator); root: how node 0 is held,
     "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator); extensible:
-    the edges stretch with axial stiffness EA (ropes, soft rods; see Simulator)."""
+    the edges stretch with axial stiffness EA (ropes, soft rods; see Simulator); strain: the
+    strain measure, "rotation", "der" or None (default: rotation, or der for a groom with its
+    own rest curvatures; see Simulator)."""
 
     groom: Groom
     material: object = field(default_factory=Material)
@@ -148,6 +153,7 @@ class Scene:
     projection: str = "fast"
     root: str = "clamped"
     extensible: bool = False
+    strain: str | None = None
 
     def __post_init__(self):
         if self.root not in ROOT_MODES:
@@ -156,7 +162,7 @@ class Scene:
                             wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
                             hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
                             integrator=self.integrator, strand_contact=self.strand_contact,
-                            projection=self.projection, extensible=self.extensible)
+                            projection=self.projection, extensible=self.extensible, strain=self.strain)
         per_strand_materials(self.material, self.groom.n_strands)
         if self.head is not None and not isinstance(self.head, Head):
             raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
@@ -169,11 +175,13 @@ class Scene:
                 "colliders": () if self.head is None else self.head.colliders,
                 "hair_interaction": self.hair_interaction, "twist": self.twist,
                 "integrator": self.integrator, "strand_contact": self.strand_contact,
-                "root": self.root, "projection": self.projection, "extensible": self.extensible}
+                "root": self.root, "projection": self.projection, "extensible": self.extensible,
+                "strain": self.strain}
 
 
 def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
-                        integrator="explicit", strand_contact=None, projection="fast", extensible=False):
+                        integrator="explicit", strand_contact=None, projection="fast", extensible=False,
+                        strain=None):
     """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
     parameter and what it allows. motion_name: what the caller calls the head motion."""
     if integrator not in INTEGRATORS:
@@ -183,6 +191,8 @@ def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_
     if projection == "shake" and integrator == "implicit":
         raise ValueError("projection='shake' is the explicit step's projection: it runs with "
                          "integrator='explicit' (the implicit step keeps energy by itself)")
+    if strain not in STRAIN_CHOICES:
+        raise ValueError(f"strain must be one of {STRAIN_CHOICES}, got {strain!r}")
     if not isinstance(extensible, (bool, np.bool_)):
         raise ValueError(f"extensible must be True or False, got {extensible!r}")
     if extensible and integrator == "implicit":
