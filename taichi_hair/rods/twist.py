@@ -21,7 +21,8 @@ Two modes (docs/model.md, "Twist"):
   per edge (Jacobi: neighbours' angles from before the update). Round strands have no axis to
   follow: they are solved exactly, as in `quasistatic`.
 
-Every function here takes `rotation` (ti.template): the strain measure (rod.py). Under the
+The quasistatic solve and the clips take `rotation` (ti.template): the strain measure (rod.py;
+Kmoch's rule on elliptic strands runs with DER, solver.system.resolve_strain). Under the
 rotation measure node i's energy depends on theta^{i-1} and theta^i together (through their mean,
 which turns its mid frame, and their difference, its twist), so the Hessian stays tridiagonal; its
 indefinite fallback is the Gauss-Newton Hessian, positive semi-definite node by node and definite
@@ -97,38 +98,21 @@ def rotation_node_at(s, i, before, after, bishop_u: ti.template(), bishop_v: ti.
 
 
 @ti.func
-def rotation_edge_terms(s, j, n, first, angle, bishop_u: ti.template(), bishop_v: ti.template(),
-                        kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                        voronoi: ti.template(), k):
-    """Rotation measure: energy [J], dE/dtheta^j and d2E/dtheta^j2 of the nodes j and j+1 (the
-    terms involving edge j) with theta^j = angle, its neighbours as they are."""
-    energy = 0.0
-    grad = 0.0
-    hess = 0.0
-    if j >= first:  # node j: theta^j is its theta^i
-        _w, e, d, h, _gn, _g_kb = rotation_node_at(s, j, angle_before(s, j, theta), angle, bishop_u, bishop_v, kb,
-                                            rest_kappa, voronoi, k)
-        energy += e
-        grad += 0.5 * d.x + d.y
-        hess += 0.25 * h.x + h.y + h.z
-    if j + 1 <= n - 2:  # node j+1: theta^j is its theta^{i-1}
-        _w, e, d, h, _gn, _g_kb = rotation_node_at(s, j + 1, angle, theta[s, j + 1], bishop_u, bishop_v, kb,
-                                            rest_kappa, voronoi, k)
-        energy += e
-        grad += 0.5 * d.x - d.y
-        hess += 0.25 * h.x - h.y + h.z
-    return energy, grad, hess
-
-
-@ti.func
 def edge_theta_gradient(s, j, n, first, rotation: ti.template(), bishop_u: ti.template(),
                         bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
                         rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(), k):
-    """dE/dtheta^j [J/rad] at the angles as they are (bending and twist, either measure)."""
+    """dE/dtheta^j [J/rad] at the angles as they are (bending and twist, either measure; under
+    the rotation measure the nodes j and j+1, where theta^j is theta^i and theta^{i-1})."""
     g = 0.0
     if ti.static(rotation):
-        _, g, _ = rotation_edge_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb, theta,
-                                      rest_kappa, voronoi, k)
+        if j >= first:
+            _w, _e, d, _h, _gn, _g_kb = rotation_node_at(s, j, angle_before(s, j, theta), theta[s, j], bishop_u,
+                                                         bishop_v, kb, rest_kappa, voronoi, k)
+            g += 0.5 * d.x + d.y
+        if j + 1 <= n - 2:
+            _w, _e, d, _h, _gn, _g_kb = rotation_node_at(s, j + 1, theta[s, j], theta[s, j + 1], bishop_u,
+                                                         bishop_v, kb, rest_kappa, voronoi, k)
+            g += 0.5 * d.x - d.y
     else:
         _, gb, _ = edge_bend_theta_terms(s, j, n, first, theta[s, j], bishop_u, bishop_v, kb,
                                          rest_kappa, voronoi, k)
@@ -341,7 +325,7 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
 
 
 @ti.func
-def kmoch_edge_angle(s, j, n, first, rotation: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
+def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.template(),
                      kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
                      rest_twist: ti.template(), voronoi: ti.template(), k):
     """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are."""
@@ -363,14 +347,9 @@ def kmoch_edge_angle(s, j, n, first, rotation: ti.template(), bishop_u: ti.templ
         best_energy = 0.0
         for c in ti.static(range(3)):
             angle = base + (c - 1) * PI
-            e = 0.0
-            if ti.static(rotation):
-                e, _, _ = rotation_edge_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, theta,
-                                              rest_kappa, voronoi, k)
-            else:
-                e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
-                                                voronoi, k)
-                e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
+            e, _, _ = edge_bend_theta_terms(s, j, n, first, angle, bishop_u, bishop_v, kb, rest_kappa,
+                                            voronoi, k)
+            e += local_twist_energy(s, j, n, first, angle, theta, rest_twist, voronoi, k.z)
             if c == 0 or e < best_energy:
                 best = angle
                 best_energy = e
@@ -379,8 +358,7 @@ def kmoch_edge_angle(s, j, n, first, rotation: ti.template(), bishop_u: ti.templ
 
 
 @ti.func
-def strand_twist_kmoch(s, clamp: ti.template(), rotation: ti.template(), node_count: ti.template(),
-                       bishop_u: ti.template(),
+def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bishop_u: ti.template(),
                        bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
                        rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
                        stiffness: ti.template(), theta_new: ti.template()):
@@ -390,8 +368,8 @@ def strand_twist_kmoch(s, clamp: ti.template(), rotation: ti.template(), node_co
     first = ti.static(first_node(clamp))
     switches = 0
     for j in range(first, n - 1):
-        angle, switched = kmoch_edge_angle(s, j, n, first, rotation, bishop_u, bishop_v, kb, theta,
-                                           rest_kappa, rest_twist, voronoi, stiffness[s])
+        angle, switched = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
+                                           rest_twist, voronoi, stiffness[s])
         theta_new[s, j] = angle
         switches += switched
     for j in range(first, n - 1):
@@ -414,8 +392,7 @@ def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: 
 
 
 @ti.func
-def strand_kmoch_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.template(),
-                        node_count: ti.template(),
+def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
                         bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
                         theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
                         rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
@@ -434,7 +411,7 @@ def strand_kmoch_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.
         suffix = 0.0
         for r in range(n - 1 - first):
             j = n - 2 - r
-            g = edge_theta_gradient(s, j, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
+            g = edge_theta_gradient(s, j, n, first, False, bishop_u, bishop_v, kb, theta, rest_kappa,
                                     rest_twist, voronoi, k)
             suffix += g  # sum over free edges >= j: the coefficient of grad psi_j
             e0, e1 = node_edges(s, j, x, root_t)
@@ -457,13 +434,13 @@ def strand_kmoch_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.
 
 
 @ti.kernel
-def kmoch_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
+def kmoch_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
                  bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
                  rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
                  force: Vec3s2):
     """strand_kmoch_forces for every strand (added to force [S, N] N). One thread per strand."""
     for s in range(x.shape[0]):
-        strand_kmoch_forces(s, clamp, rotation, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
+        strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
                             rest_kappa, rest_twist, voronoi, stiffness, force)
 
 

@@ -506,7 +506,7 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
         elif ti.static(fl.twist_mode == 1):
-            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, fl.rotation, md.node_count, st.bishop_u,
+            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
                                                                st.bishop_v, st.kb, st.theta, md.rest_kappa,
                                                                md.rest_twist, md.voronoi, md.stiffness, st.diag)
         strand_material_frames(s, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
@@ -526,7 +526,7 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
     strand_elastic_forces(s, clamp, fl.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta,
                           st.root_t, st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
     if ti.static(fl.twist_mode == 1):
-        strand_kmoch_forces(s, clamp, fl.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+        strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                             st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
     if ti.static(fl.clips):
         strand_held_twist_forces(s, clamp, fl.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
@@ -941,7 +941,7 @@ def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
     elastic_forces(md.clamp, md.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
                    st.root_u, kappa, md.voronoi, md.stiffness, st.force)
     if twist == "kmoch":
-        kmoch_forces(md.clamp, md.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                      st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
 
 

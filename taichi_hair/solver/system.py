@@ -25,17 +25,28 @@ IMPLICIT_KMOCH_REFUSAL = (
     "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
     "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
 
-def resolve_strain(strain, groom: Groom) -> str:
-    """The strain measure of `strain` ("der", "rotation", or None: "rotation", unless the groom
-    carries its own rest curvatures, which are the DER measure's (sag_free makes them))."""
+ROTATION_KMOCH_REFUSAL = (
+    "twist='kmoch' on elliptic strands runs with strain='der' (or strain=None): Kmoch's rule was built "
+    "on the DER measure, and under strain='rotation' an undamped elliptic curl (ellipticity 4) swinging "
+    "for 0.5 s gained 1.1e-7 J, a quarter of its peak kinetic energy, at every step size tried (DER: no "
+    "gain); use twist='quasistatic' for the rotation measure (docs/model.md, \"Strains from rotations\")")
+
+
+def resolve_strain(strain, groom: Groom, twist: str, elliptic: bool) -> str:
+    """The strain measure of `strain`: "der", "rotation", or None: "rotation", but "der" for a
+    groom that carries its own rest curvatures (they are the DER measure's: sag_free makes them)
+    and under twist="kmoch" (the rule was built on DER: on elliptic curls under the rotation
+    measure it gains energy, measured in ROTATION_KMOCH_REFUSAL). elliptic: any strand is."""
     if strain is None:
-        return "der" if groom.rest_curvature is not None else "rotation"
+        return "der" if groom.rest_curvature is not None or twist == "kmoch" else "rotation"
     if strain not in STRAINS:
         raise ValueError(f"strain must be one of {STRAINS} or None (rotation, or der for a groom with "
-                         f"its own rest curvatures), got {strain!r}")
+                         f"its own rest curvatures or under twist='kmoch'), got {strain!r}")
     if strain == "rotation" and groom.rest_curvature is not None:
         raise ValueError("strain='rotation' cannot take this groom's own rest curvatures (e.g. from "
                          "sag_free): they are the DER measure's; use strain='der' or strain=None")
+    if strain == "rotation" and twist == "kmoch" and elliptic:
+        raise ValueError(ROTATION_KMOCH_REFUSAL)
     return strain
 
 
@@ -64,7 +75,8 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        strain = resolve_strain(strain, groom)
+        strain = resolve_strain(strain, groom, twist, any(
+            m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)))
         if integrator == "implicit" and twist == "kmoch" and any(
                 m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)):
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
