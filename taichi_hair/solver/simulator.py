@@ -24,7 +24,7 @@ from .strand_contact import contact_grid, resolve_strand_contacts
 from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
-from .system import RodSystem
+from .system import DEFAULT_TWIST_ITERATIONS, RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
                    SMALL_CONTACT_SCENE, place_roots, project_once, seed_history, step_with_strand_contact,
@@ -123,7 +123,8 @@ class Simulator:
     def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
                  drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "quasistatic",
                  projection_tol: float | None = None, projection_iterations: int = 100,
-                 twist_tol: float | None = None, twist_iterations: int = 100, root_motion=None,
+                 twist_tol: float | None = None, twist_iterations: int = DEFAULT_TWIST_ITERATIONS,
+                 root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
                  max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,

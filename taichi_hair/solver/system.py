@@ -25,6 +25,11 @@ IMPLICIT_KMOCH_REFUSAL = (
     "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
     "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
 
+# the quasistatic solve's default iteration cap: shaken elliptic curls snapping through between
+# branches took up to 112 Newton iterations under the rotation measure (48 under DER), where the
+# Hessian is indefinite and its Gauss-Newton fallback converges linearly
+DEFAULT_TWIST_ITERATIONS = 300
+
 ROTATION_KMOCH_REFUSAL = (
     "twist='kmoch' on elliptic strands runs with strain='der' (or strain=None): Kmoch's rule was built "
     "on the DER measure, and under strain='rotation' an undamped elliptic curl (ellipticity 4) swinging "
@@ -55,14 +60,16 @@ class RodSystem:
 
     twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
     quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
-    float32; 100). root: "clamped", "pinned", "edge" or "free" (see Simulator). integrator: "explicit"
+    float32; DEFAULT_TWIST_ITERATIONS). root: "clamped", "pinned", "edge" or "free" (see
+    Simulator). integrator: "explicit"
     or "implicit" (allocates the implicit step's arrays, see Simulator); extensible: the edges
     stretch with axial stiffness EA (see Simulator); strain: the strain measure, "rotation",
     "der" or None (see Simulator, resolve_strain). Attributes: groom,
     model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
 
     def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
-                 twist_tol: float | None = None, twist_iterations: int = 100, integrator: str = "explicit",
+                 twist_tol: float | None = None, twist_iterations: int = DEFAULT_TWIST_ITERATIONS,
+                 integrator: str = "explicit",
                  extensible: bool = False, strain: str | None = None):
         ensure_init()
         if not isinstance(groom, Groom):
