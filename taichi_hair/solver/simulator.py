@@ -116,7 +116,9 @@ class Simulator:
         2 tan(phi/2) seen from each edge's material frame and the twist as a difference of
         angles, the measure before 2026-12-03, kept to compare) or None (default: "rotation",
         but "der" for a groom that carries its own rest curvatures, which are DER's: sag_free
-        makes them). `sim.strain` says which. Both integrators run both.
+        makes them, and under twist="kmoch", whose rule was built on DER and gains energy on
+        elliptic curls under the rotation measure: that pair is refused). `sim.strain` says
+        which. Both integrators run both.
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
