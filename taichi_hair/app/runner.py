@@ -18,7 +18,7 @@ import numpy as np
 from . import cluster
 from ..world.colliders import _scalar, _vec
 from ..progress import ProgressBar
-from ..world.scene import PROJECTIONS, Scene
+from ..world.scene import PROJECTIONS, STRAIN_CHOICES, Scene
 
 STATE_FILE = "state.npz"
 PROGRESS_FILE = "progress.json"
@@ -483,7 +483,7 @@ def add_parser(sub):
                    help="override the scene's integrator (implicit: no stability bound, docs/model.md)")
     p.add_argument("--projection", default=None, choices=PROJECTIONS,
                    help="override the explicit step's projection (shake: keeps an undamped swing's energy)")
-    p.add_argument("--strain", default=None, choices=["rotation", "der"],
+    p.add_argument("--strain", default=None, choices=[c for c in STRAIN_CHOICES if c],
                    help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md)")
     p.add_argument("--no-progress", action="store_true")
     cluster.add_arguments(p)

@@ -82,10 +82,9 @@ class RodSystem:
             raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        strain = resolve_strain(strain, groom, twist, any(
-            m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)))
-        if integrator == "implicit" and twist == "kmoch" and any(
-                m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands)):
+        elliptic = any(m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands))
+        strain = resolve_strain(strain, groom, twist, elliptic)
+        if integrator == "implicit" and twist == "kmoch" and elliptic:
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
             raise ValueError(IMPLICIT_KMOCH_REFUSAL)
         self.groom, self.twist, self.root, self.integrator, self.strain = groom, twist, root, integrator, strain
