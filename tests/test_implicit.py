@@ -315,6 +315,18 @@ def test_kmoch_twist_on_elliptic_strands_is_refused_by_the_implicit_step():
     th.Simulator(groom, th.Material(), twist="kmoch", integrator="implicit")
 
 
+def test_frozen_angles_on_elliptic_strands_are_refused_by_the_implicit_step():
+    """twist="none" on elliptic strands: the implicit matrix has no angle columns (the stability
+    matrix's elliptic twist="none" curls gained all their energy or diverged), so refused with a
+    message naming the mode, the strands and the integrator that runs them; round strands with
+    frozen angles run (the implicit cantilever above)."""
+    groom = th.Groom.curly(**CURLY)
+    with pytest.raises(ValueError, match="twist='none' on elliptic strands.*integrator='explicit'"):
+        th.Simulator(groom, th.Material(ellipticity=1.5), twist="none", integrator="implicit")
+    th.Simulator(groom, th.Material(), twist="none", integrator="implicit")
+    th.Simulator(groom, th.Material(ellipticity=1.5), twist="none", integrator="explicit")
+
+
 def test_implicit_cantilever_settles_on_the_elastica_at_large_steps():
     material = th.Material(**BEAM)
     ei, rho_a = material.bending_stiffness[0], material.linear_density

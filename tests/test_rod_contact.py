@@ -1,6 +1,7 @@
 """Strand-strand contact in the simulator (StrandContact): crossed strands pressed together, a
 coil dropped onto a floor, energy through a frictionless collision, friction holding a strand
-on another. Distances are measured here with an independent brute-force segment distance."""
+on another. Distances are measured here by brute force between the curves through the nodes
+(curve_polyline, what strand contact keeps apart), sampled independently of the kernels."""
 
 import warnings
 
@@ -18,21 +19,52 @@ def simulator(groom, material, **options):
         return th.Simulator(groom, material, **options)
 
 
-def segment_distances(a, b, samples=400):
+def curve_polyline(x, radius, pieces=8):
+    """The curve strand contact keeps apart, through the nodes of polyline x [n, 3], as a finer
+    polyline [(n - 1) pieces + 1, 3]: on each segment the chord point at u moved by
+    -(l^2 / 2) u (1 - u) kappa(u), kappa interpolated between the nodes' curvature vectors
+    (t_i - t_{i-1}) / mean edge length (zero at the end nodes), the move at most `radius` [m]."""
+    e = np.diff(x, axis=0)
+    length = np.linalg.norm(e, axis=1)
+    t = e / length[:, None]
+    kappa = np.zeros_like(x)
+    kappa[1:-1] = (t[1:] - t[:-1]) / (0.5 * (length[1:] + length[:-1]))[:, None]
+    u = np.linspace(0.0, 1.0, pieces + 1)[:-1][None, :, None]
+    along = (1 - u) * kappa[:-1, None] + u * kappa[1:, None]
+    offset = -0.5 * length[:, None, None] ** 2 * u * (1 - u) * along
+    size = np.linalg.norm(offset, axis=2, keepdims=True)
+    offset = np.where(size > radius, offset * radius / np.where(size > 0, size, 1), offset)
+    points = x[:-1, None] + u * e[:, None] + offset
+    return np.vstack([points.reshape(-1, 3), x[-1:]])
+
+
+def polyline_distances(a, b, samples):
     """Distance between every segment of polyline a [n, 3] and of polyline b [m, 3]: [n-1, m-1],
-    by sampling a's segment densely and projecting each sample exactly onto b's segment."""
+    by sampling a's segment densely and projecting each sample exactly onto b's segment (a's
+    segments in chunks, to bound the memory)."""
     s = np.linspace(0.0, 1.0, samples)
-    pa = a[:-1, None, :] + s[None, :, None] * np.diff(a, axis=0)[:, None, :]  # [n-1, K, 3]
     b0, d = b[:-1], np.diff(b, axis=0)  # [m-1, 3]
-    rel = pa[:, :, None, :] - b0[None, None]  # [n-1, K, m-1, 3]
-    t = np.clip((rel * d).sum(-1) / (d * d).sum(-1), 0.0, 1.0)
-    gap = rel - t[..., None] * d
-    return np.linalg.norm(gap, axis=-1).min(axis=1)
+    rows = []
+    for start in range(0, len(a) - 1, 64):
+        part = a[start:start + 65]
+        pa = part[:-1, None, :] + s[None, :, None] * np.diff(part, axis=0)[:, None, :]  # [k, K, 3]
+        rel = pa[:, :, None, :] - b0[None, None]  # [k, K, m-1, 3]
+        t = np.clip((rel * d).sum(-1) / (d * d).sum(-1), 0.0, 1.0)
+        rows.append(np.linalg.norm(rel - t[..., None] * d, axis=-1).min(axis=1))
+    return np.vstack(rows)
 
 
-def self_distance(x, gap):
+def segment_distances(a, b, radius, pieces=8, samples=50):
+    """Distance between the curves of every segment of strand a [n, 3] and of strand b [m, 3]
+    (curve_polyline: what strand contact keeps apart; a bent strand's chords cut its corners):
+    [n-1, m-1], the smallest distance between their pieces."""
+    d = polyline_distances(curve_polyline(a, radius, pieces), curve_polyline(b, radius, pieces), samples)
+    return d.reshape(len(a) - 1, pieces, len(b) - 1, pieces).min(axis=(1, 3))
+
+
+def self_distance(x, gap, radius):
     """Smallest distance between segments of one polyline at least `gap` apart along it."""
-    d = segment_distances(x, x)
+    d = segment_distances(x, x, radius)
     i, j = np.indices(d.shape)
     return d[np.abs(i - j) >= gap].min()
 
@@ -60,7 +92,7 @@ def test_crossed_ropes_pressed_together_never_interpenetrate():
     for _ in range(12):
         sim.step(50)
         x = sim.positions()
-        closest.append(segment_distances(x[0], x[1]).min())
+        closest.append(segment_distances(x[0], x[1], ROPE.radius).min())
     assert min(closest) >= (1 - contact.tolerance) * 2 * ROPE.radius
     x = sim.positions()
     middle = len(x[0]) // 2
@@ -93,7 +125,7 @@ def test_coil_dropped_on_a_floor_does_not_pass_through_itself(contact):
     closest = []
     for _ in range(8):
         sim.step(25)
-        closest.append(self_distance(sim.positions()[0], gap))
+        closest.append(self_distance(sim.positions()[0], gap, cord.radius))
     if contact:
         assert min(closest) >= 0.95 * 2 * cord.radius
         assert sim.positions()[0, :, 2].min() >= 0.95 * cord.radius  # on the floor, not in it

@@ -61,9 +61,38 @@ def reference_gap(radius, mean_length):
     return np.maximum(2, 1 + np.ceil(0.8 * np.pi * radius / mean_length)).astype(int)
 
 
+def node_curvatures(x, counts, s, i):
+    """Curvature vectors [k, 3] at nodes (s, i) [k]: the circle through nodes i - 1, i, i + 1,
+    (t_i - t_{i-1}) / mean edge length, zero at a strand's end nodes."""
+    interior = (i > 0) & (i + 1 < counts[s])
+    lo, mid, hi = np.maximum(i - 1, 0), i, np.minimum(i + 1, x.shape[1] - 1)
+    e0, e1 = x[s, mid] - x[s, lo], x[s, hi] - x[s, mid]
+    l0 = np.linalg.norm(e0, axis=1, keepdims=True)
+    l1 = np.linalg.norm(e1, axis=1, keepdims=True)
+    ok = interior[:, None] & (l0 > 0) & (l1 > 0)
+    k = (e1 / np.where(ok, l1, 1) - e0 / np.where(ok, l0, 1)) / np.where(ok, 0.5 * (l0 + l1), 1)
+    return np.where(ok, k, 0.0)
+
+
+def curve_points(x, counts, s, j, u, radius):
+    """Points [k, 3] at parameter u [k] of segment (s, j) [k] on the curve through the nodes the
+    contact uses: the chord point moved by -(l^2 / 2) u (1 - u) kappa(u), kappa interpolated
+    between the two nodes' curvatures (the parabola through both nodes with that curvature),
+    the move shortened to at most the strand's radius [S]."""
+    a0, a1 = x[s, j], x[s, j + 1]
+    u = u[:, None]
+    kappa = (1 - u) * node_curvatures(x, counts, s, j) + u * node_curvatures(x, counts, s, j + 1)
+    l2 = ((a1 - a0) ** 2).sum(1, keepdims=True)
+    offset = -0.5 * l2 * u * (1 - u) * kappa
+    size = np.linalg.norm(offset, axis=1, keepdims=True)
+    cap = radius[s][:, None]
+    return a0 + u * (a1 - a0) + np.where(size > cap, offset * cap / np.where(size > 0, size, 1), offset)
+
+
 def brute_pairs(x, counts, radius, gap, self_contact, held_strands=()):
     """All allowed segment pairs closer than r_a + r_b, by examining every pair: {(sa, ja, sb, jb):
-    r_a + r_b - d} with slot a < slot b."""
+    r_a + r_b - d} with slot a < slot b; d between the curve points (curve_points) at the
+    chords' closest parameters."""
     segs = [(s, j) for s in range(len(counts)) for j in range(counts[s] - 1)]
     a_idx, b_idx = np.triu_indices(len(segs), k=1)
     seg = np.array(segs)
@@ -75,10 +104,13 @@ def brute_pairs(x, counts, radius, gap, self_contact, held_strands=()):
         allowed &= ~held
     a0, a1, b0, b1 = x[sa, ja], x[sa, ja + 1], x[sb, jb], x[sb, jb + 1]
     rsum = radius[sa] + radius[sb]
-    # bounding spheres: a cheap, conservative cut before the exact distances
-    reach = (np.linalg.norm(a1 - a0, axis=1) + np.linalg.norm(b1 - b0, axis=1)) / 2 + rsum
+    # bounding spheres: a cheap, conservative cut before the exact distances (the curves bulge
+    # from the chords by at most a quarter segment here)
+    reach = (np.linalg.norm(a1 - a0, axis=1) + np.linalg.norm(b1 - b0, axis=1)) + rsum
     near = allowed & (np.linalg.norm((a0 + a1) / 2 - (b0 + b1) / 2, axis=1) < reach)
-    d = segment_distance(a0[near], a1[near], b0[near], b1[near])
+    s, t = closest_params(a0[near], a1[near], b0[near], b1[near])
+    d = np.linalg.norm(curve_points(x, counts, sa[near], ja[near], s, radius)
+                       - curve_points(x, counts, sb[near], jb[near], t, radius), axis=1)
     keep = d < rsum[near]
     rows = np.stack([sa, ja, sb, jb], axis=1)[near][keep]
     return {tuple(int(v) for v in r): float(p) for r, p in zip(rows, rsum[near][keep] - d[keep])}
@@ -246,7 +278,8 @@ def closest_params(a0, a1, b0, b1):
     a, e, b = (d1 * d1).sum(-1), (d2 * d2).sum(-1), (d1 * d2).sum(-1)
     c, f = (d1 * r).sum(-1), (d2 * r).sum(-1)
     det = a * e - b * b
-    options = [((b * f - c * e) / det, (a * f - b * c) / det)]
+    with np.errstate(divide="ignore", invalid="ignore"):  # parallel pairs: the edges decide
+        options = [((b * f - c * e) / det, (a * f - b * c) / det)]
     options += [(np.zeros_like(a), np.clip(f / e, 0, 1)), (np.ones_like(a), np.clip((f + b) / e, 0, 1)),
                 (np.clip(-c / a, 0, 1), np.zeros_like(a)), (np.clip((b - c) / a, 0, 1), np.ones_like(a))]
     best = np.full(a.shape, np.inf)
@@ -260,7 +293,7 @@ def closest_params(a0, a1, b0, b1):
     return s_best, t_best
 
 
-def reference_pass(x, x_prev, inv_mass, pairs, radius, friction):
+def reference_pass(x, x_prev, inv_mass, pairs, radius, friction, counts):
     """One Jacobi contact pass in numpy, written from the PBD edge-edge response with the push
     shared p1 = s + sin(2 pi s) / (2 pi) (strand_contact.push_shares): (the moves of x and dx
     [S, N, 3], the pairs acted on: those with a free node of nonzero weight)."""
@@ -282,14 +315,14 @@ def reference_pass(x, x_prev, inv_mass, pairs, radius, friction):
         if W == 0:
             continue
         acted += 1
-        pa = (1 - s[k]) * a0[k] + s[k] * a1[k]
-        pb = (1 - t[k]) * b0[k] + t[k] * b1[k]
+        on = lambda y, strand, seg, u: curve_points(y, counts, np.array([strand]), np.array([seg]),  # noqa: E731
+                                                    np.array([u]), radius)[0]
+        pa, pb = on(x, sa[k], ja[k], s[k]), on(x, sb[k], jb[k], t[k])
         d = np.linalg.norm(pa - pb)
         n = (pa - pb) / d
         depth = radius[sa[k]] + radius[sb[k]] - d
         # a pair that crossed since x_prev (at the same material points) goes back to its side
-        xp = x_prev
-        before = ((1 - s[k]) * xp[nodes[0]] + s[k] * xp[nodes[1]]) - ((1 - t[k]) * xp[nodes[2]] + t[k] * xp[nodes[3]])
+        before = on(x_prev, sa[k], ja[k], s[k]) - on(x_prev, sb[k], jb[k], t[k])
         if (pa - pb) @ before < 0:
             n = before / np.linalg.norm(before)
             depth = radius[sa[k]] + radius[sb[k]] + (pa - pb) @ -n
@@ -322,7 +355,7 @@ def test_one_pass_matches_a_numpy_jacobi_pass(friction):
     x_prev = x - rng.normal(scale=1e-5, size=x.shape)
     mean = np.array([rest[s, :n - 1].mean() for s, n in enumerate(counts)])
     pairs = brute_pairs(x, counts, radius, reference_gap(radius, mean), True, held_strands=(4,))
-    expected, acted = reference_pass(x, x_prev, inv_mass, pairs, radius, friction)
+    expected, acted = reference_pass(x, x_prev, inv_mass, pairs, radius, friction, counts)
     assert 0 < acted < len(pairs)  # some pairs touch the held strand only at a held root
     grid = ContactGrid(counts, radius, friction=friction, self_contact=True, max_nodes=N, rest_length=rest)
     xa, dx, xp, im = state(x, inv_mass, x_prev)
@@ -351,6 +384,34 @@ def crossing(height, n=6, along_b=(0.0, 1.0, 0.0), shift_b=0.0):
     x[0, :, 0] = (np.arange(n) - 2 - S0) * L
     x[1] = (np.arange(n)[:, None] - 2 - T0 + shift_b) * L * np.asarray(along_b) + np.array([0, 0, height])
     return x
+
+
+def test_contact_sees_the_curve_not_the_chord():
+    """Strand a on a circle of radius 2 cm (nodes 0.2 rad apart, its lowest point in the middle
+    of segment 2, the circle's bottom at the origin), strand b straight along y, 0.98 of the
+    radius sum below that point: the curves overlap by 0.02 rsum, which the contact must report,
+    while segment 2's chord sits 1.0e-4 m (0.04 rsum) above the circle, so chords alone would
+    see a gap. The contact's curve is the parabola through the nodes with their curvature
+    vectors averaged (each 1 / R towards the centre, dphi / 2 off the vertical): sag
+    l^2 cos(dphi / 2) / (8 R), against the arc's R (1 - cos(dphi / 2)), 7.5e-7 m apart here,
+    1.5 % of the overlap: second order in dphi."""
+    rsum = RA + RB
+    radius_circle, dphi, n = 0.02, 0.2, 6
+    angle = (np.arange(n) - (n - 1) / 2) * dphi
+    x = np.zeros((2, n, 3))
+    x[0] = np.stack([radius_circle * np.sin(angle), np.zeros(n), radius_circle * (1 - np.cos(angle))], axis=1)
+    x[1, :, 1] = (np.arange(n) - (n - 1) / 2) * L
+    x[1, :, 2] = -0.98 * rsum
+    chord_gap = x[0, 2, 2] - x[1, 0, 2]  # segment 2's chord at its middle, above b
+    assert chord_gap > rsum  # chords: no contact
+    grid = ContactGrid(np.array([n, n]), np.array([RA, RB]), friction=0.0, self_contact=False, max_nodes=n)
+    xa, dx, xp, im = state(x, 1.0)
+    overlap = 0.02 * rsum  # of the circle and the line
+    chord = 2 * radius_circle * np.sin(dphi / 2)
+    sag_difference = radius_circle * (1 - np.cos(dphi / 2)) - chord**2 * np.cos(dphi / 2) / (8 * radius_circle)
+    assert grid.max_penetration(xa) == pytest.approx(overlap - sag_difference, rel=1e-6)
+    assert grid.max_penetration(xa) == pytest.approx(overlap, rel=2e-2)
+    assert grid.contact_pairs(xa).shape[0] == 1
 
 
 @pytest.mark.parametrize("pinned", [False, True])
@@ -382,8 +443,14 @@ def test_crossing_is_pushed_apart(pinned):
     # that the next pass removes: the gap left shrinks quadratically (0.5, 1e-3, 1e-9, 1e-16
     # of rsum here, 0.5, 6e-3, 1e-6, 1e-14 pinned), so five passes leave float64 rounding of
     # the 1 cm coordinates (~1e-18 m, 1e-15 of rsum); 1e-12 leaves room for other libms
+    # (of the curves through the nodes: the pushed strands bend, and their chords then sit
+    # closer than the curves by the sag: 1.2e-3 of rsum here, 6.5e-3 pinned)
     a0, a1, b0, b1 = after[0, 2], after[0, 3], after[1, 2], after[1, 3]
-    assert segment_distance(a0[None], a1[None], b0[None], b1[None])[0] >= rsum * (1 - 1e-12)
+    s, t = closest_params(a0[None], a1[None], b0[None], b1[None])
+    on_curves = np.linalg.norm(curve_points(after, counts, np.array([0]), np.array([2]), s, radius)
+                               - curve_points(after, counts, np.array([1]), np.array([2]), t, radius))
+    assert on_curves >= rsum * (1 - 1e-12)
+    assert segment_distance(a0[None], a1[None], b0[None], b1[None])[0] >= rsum * (1 - 1e-2)
     assert grid.max_penetration(xa) <= 1e-12 * rsum
     assert brute_pairs(after, counts, radius * (1 - 1e-12), np.full(2, 2), True) == {}  # no pair at all
     held = inv_mass == 0

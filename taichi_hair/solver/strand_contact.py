@@ -1,6 +1,7 @@
 """Strand-strand contact (rod-rod), position based, with Coulomb friction.
 
-Every segment (the capsule of its strand's contact radius around nodes j and j + 1) is kept at
+Every segment (the tube of its strand's contact radius around the curve through nodes j and
+j + 1: the chord bent by the nodes' curvature, `arc_offset`) is kept at
 least r_a + r_b away from every other segment it may touch: segments of other strands, and with
 `self_contact` segments of its own strand further apart along it than the neighbour gap. One
 `ContactGrid.resolve` call is one Jacobi pass: it finds all overlapping segment pairs on a
@@ -46,7 +47,8 @@ MEASURE, RESOLVE, RECORD = 0, 1, 2
 # slots of the float parameter array
 # (PAIR_COUNT repeats counters[PAIRS] as a float, so a pass reads back one small array; DONE,
 # and DEPTH_MAX belong to the fused step, step.advance_with_strand_contact)
-MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT, DONE, DEPTH_MAX = range(7)
+# (MAX_BULGE: the largest distance from a segment's chord to its curve, arc_offset's bound)
+MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT, DONE, DEPTH_MAX, MAX_BULGE = range(8)
 STEP_VALUES = 8  # params[8:25]: the fused step's scalars (step.write_step_values)
 # slots of the integer counter array
 PAIRS, CANDIDATES, RECORDED = 0, 1, 2
@@ -127,6 +129,51 @@ def contact_normal(pa, pb, da, db, d, rsum):
 
 
 @ti.func
+def node_curvature(x: ti.template(), node_count: ti.template(), s, i):
+    """Curvature vector [1/m] at node i of strand s, pointing to the centre of curvature:
+    (t_i - t_{i-1}) / ((l_{i-1} + l_i) / 2), of magnitude 2 sin(phi / 2) / l at turning angle
+    phi, the curvature of the circle through the three nodes when the edges are equal. Zero at
+    a strand's end nodes (and next to a zero-length edge)."""
+    k = vec3(0.0)
+    if i > 0 and i + 1 < node_count[s]:
+        e0 = edge(x, s, i - 1, i)
+        e1 = edge(x, s, i, i + 1)
+        l0 = e0.norm()
+        l1 = e1.norm()
+        if l0 > 0.0 and l1 > 0.0:
+            k = (e1 / l1 - e0 / l0) / (0.5 * (l0 + l1))
+    return k
+
+
+@ti.func
+def arc_offset(x: ti.template(), node_count: ti.template(), s, j, u, cap):
+    """From the chord of segment j of strand s to the curve through its nodes, at parameter u
+    in [0, 1] [m]: -(l^2 / 2) u (1 - u) kappa(u), kappa interpolated linearly between the
+    nodes' curvature vectors (node_curvature), shortened to at most `cap` [m] (the strand's
+    contact radius). The parabola through both nodes with that curvature: on a circle of
+    curvature kappa it is l^2 kappa / 8 at the middle, the arc's sag to second order. Zero on
+    a straight strand and at the nodes. Why the cap: a segment whose curve leaves its chord by
+    more than a radius turns by over 8 r / l, too coarse a polyline to say where its surface
+    is, and an uncapped bulge would grow every cell of the pair search (a single kink in a
+    scene would)."""
+    l2 = edge(x, s, j, j + 1).norm_sqr()
+    k = (1.0 - u) * node_curvature(x, node_count, s, j) + u * node_curvature(x, node_count, s, j + 1)
+    offset = -(0.5 * l2 * u * (1.0 - u)) * k
+    size = offset.norm()
+    if size > cap:
+        offset *= cap / size
+    return offset
+
+
+@ti.func
+def bulge(x: ti.template(), node_count: ti.template(), s, j, cap):
+    """A bound on |arc_offset| over segment j of strand s [m]: l^2 / 8 max(|kappa_j|, |kappa_j+1|),
+    at most `cap`."""
+    k = ti.max(node_curvature(x, node_count, s, j).norm(), node_curvature(x, node_count, s, j + 1).norm())
+    return ti.min(0.125 * edge(x, s, j, j + 1).norm_sqr() * k, cap)
+
+
+@ti.func
 def cell_hash(c, mask):
     """Bucket in [0, mask] of integer cell c (mask = table size - 1, a power of two minus one):
     the usual three-prime hash, then murmur3's finaliser so the low bits the mask keeps are
@@ -142,20 +189,24 @@ def cell_hash(c, mask):
 @ti.func
 def _count(node_count: ti.template(), x: ti.template(), params: ti.template(), seg_cell: ti.template(),
            seg_bucket: ti.template(), bucket_count: ti.template(), mask):
-    """Bin every segment by its midpoint into a cubic cell of side L + 2 R_max (L the longest
-    current segment, R_max the largest radius; params[CELL] [m]) and count segments per hash
-    bucket. Two segments within r_a + r_b of each other have midpoints less than
-    l_a / 2 + l_b / 2 + r_a + r_b <= cell apart, so in the same or adjacent cells: the pair search
+    """Bin every segment by its midpoint into a cubic cell of side L + 2 (R_max + B_max) (L the
+    longest current segment, R_max the largest radius, B_max <= R_max the largest bulge of a
+    segment's curve from its chord, `bulge`; params[CELL] [m]) and count segments per hash bucket. Two
+    segments whose curves are within r_a + r_b of each other have midpoints less than
+    l_a / 2 + l_b / 2 + r_a + r_b + b_a + b_b <= cell apart, so in the same or adjacent cells: the pair search
     visits the 27 cells around a segment's own. The current (not rest) lengths keep that true for
     stretched segments. Padding slots get bucket -1."""
     n_seg = x.shape[1] - 1
     params[MAX_LENGTH] = 0.0
+    params[MAX_BULGE] = 0.0
     for h in range(bucket_count.shape[0]):
         bucket_count[h] = 0
     for s, j in ti.ndrange(x.shape[0], n_seg):
         if j + 1 < node_count[s]:
             ti.atomic_max(params[MAX_LENGTH], edge(x, s, j, j + 1).norm())
-    params[CELL] = params[MAX_LENGTH] + 2.0 * params[MAX_RADIUS]
+            ti.atomic_max(params[MAX_BULGE], bulge(x, node_count, s, j, params[MAX_RADIUS]))
+    # two segments whose curves touch have midpoints at most a cell apart
+    params[CELL] = params[MAX_LENGTH] + 2.0 * (params[MAX_RADIUS] + params[MAX_BULGE])
     for s, j in ti.ndrange(x.shape[0], n_seg):
         g = s * n_seg + j
         seg_bucket[g] = -1
@@ -254,6 +305,7 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
             a1 = point(x, sa, ja + 1)
             ra = radius[sa]
             length_a = (a1 - a0).norm()
+            bulge_a = bulge(x, node_count, sa, ja, ra)
             mid_a = 0.5 * (a0 + a1)
             home = seg_cell[ga]
             examined = 0
@@ -288,18 +340,24 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
                         motion = (ti.max((a0 - a0p).norm(), (a1 - a1p).norm())
                                   + ti.max((b0 - b0p).norm(), (b1 - b1p).norm()))
                         # bounding spheres about the midpoints: a cheap exact reject before the
-                        # closest points (most candidates in the 27 cells are not near)
-                        reach = 0.5 * (length_a + (b1 - b0).norm()) + rsum + motion
+                        # closest points (most candidates in the 27 cells are not near), grown
+                        # by how far the curves through the nodes bulge from the chords
+                        reach = (0.5 * (length_a + (b1 - b0).norm()) + rsum + motion + bulge_a
+                                 + params[MAX_BULGE])
                         gap_mid = mid_a - 0.5 * (b0 + b1)
                         if allowed and gap_mid.dot(gap_mid) < reach * reach:
                             s, t = segment_closest(a0, a1, b0, b1)
-                            pa = a0 + s * (a1 - a0)
-                            pb = b0 + t * (b1 - b0)
+                            # the contact points on the curves the nodes sample, not on their
+                            # chords: a chord cuts a bent strand's corner by l^2 kappa / 8
+                            rb = radius[sb]
+                            pa = a0 + s * (a1 - a0) + arc_offset(x, node_count, sa, ja, s, ra)
+                            pb = b0 + t * (b1 - b0) + arc_offset(x, node_count, sb, jb, t, rb)
                             d = (pa - pb).norm()
                             # the side b was on at the step's start, at the same material points:
                             # a pair that crossed within the step is pushed back to it, not on
                             # through (discrete contact would let fast strands tunnel)
-                            before = (a0p + s * (a1p - a0p)) - (b0p + t * (b1p - b0p))
+                            before = ((a0p + s * (a1p - a0p) + arc_offset(x_prev, node_count, sa, ja, s, ra))
+                                      - (b0p + t * (b1p - b0p) + arc_offset(x_prev, node_count, sb, jb, t, rb)))
                             crossed = 0
                             if (pa - pb).dot(before) < 0.0 and before.dot(before) > 0.0:
                                 crossed = 1

@@ -25,6 +25,14 @@ IMPLICIT_KMOCH_REFUSAL = (
     "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
     "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
 
+IMPLICIT_FROZEN_ELLIPTIC_REFUSAL = (
+    "twist='none' on elliptic strands (ellipticity > 1) runs with integrator='explicit': with the "
+    "angles frozen the implicit step's matrix has no angle columns and leaves out how the material "
+    "frames turn with the positions, which an elliptic section's bending feels; in its stability "
+    "matrix (float32) a 5 mm curl of ellipticity 1.5 gained all of its energy in play within 0.2 s and "
+    "curls of ellipticity 4 diverged (use twist='quasistatic' with the implicit step; docs/model.md, "
+    "\"The implicit step\")")
+
 # the quasistatic solve's default iteration cap: shaken elliptic curls snapping through between
 # branches took up to 112 Newton iterations under the rotation measure (48 under DER), where the
 # Hessian is indefinite and its Gauss-Newton fallback converges linearly
@@ -87,6 +95,8 @@ class RodSystem:
         if integrator == "implicit" and twist == "kmoch" and elliptic:
             # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
             raise ValueError(IMPLICIT_KMOCH_REFUSAL)
+        if integrator == "implicit" and twist == "none" and elliptic:
+            raise ValueError(IMPLICIT_FROZEN_ELLIPTIC_REFUSAL)
         self.groom, self.twist, self.root, self.integrator, self.strain = groom, twist, root, integrator, strain
         self.twist_iterations = int(twist_iterations)
         self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
