@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
+from references import curve_points
 
 import taichi_hair as th
 
@@ -20,22 +21,14 @@ def simulator(groom, material, **options):
 
 
 def curve_polyline(x, radius, pieces=8):
-    """The curve strand contact keeps apart, through the nodes of polyline x [n, 3], as a finer
-    polyline [(n - 1) pieces + 1, 3]: on each segment the chord point at u moved by
-    -(l^2 / 2) u (1 - u) kappa(u), kappa interpolated between the nodes' curvature vectors
-    (t_i - t_{i-1}) / mean edge length (zero at the end nodes), the move at most `radius` [m]."""
-    e = np.diff(x, axis=0)
-    length = np.linalg.norm(e, axis=1)
-    t = e / length[:, None]
-    kappa = np.zeros_like(x)
-    kappa[1:-1] = (t[1:] - t[:-1]) / (0.5 * (length[1:] + length[:-1]))[:, None]
-    u = np.linspace(0.0, 1.0, pieces + 1)[:-1][None, :, None]
-    along = (1 - u) * kappa[:-1, None] + u * kappa[1:, None]
-    offset = -0.5 * length[:, None, None] ** 2 * u * (1 - u) * along
-    size = np.linalg.norm(offset, axis=2, keepdims=True)
-    offset = np.where(size > radius, offset * radius / np.where(size > 0, size, 1), offset)
-    points = x[:-1, None] + u * e[:, None] + offset
-    return np.vstack([points.reshape(-1, 3), x[-1:]])
+    """The curve strand contact keeps apart through the nodes of polyline x [n, 3]
+    (references.curve_points, the move at most `radius` [m]) as a finer polyline
+    [(n - 1) pieces + 1, 3]."""
+    n = len(x)
+    j = np.repeat(np.arange(n - 1), pieces)
+    u = np.tile(np.linspace(0.0, 1.0, pieces + 1)[:-1], n - 1)
+    points = curve_points(x[None], np.array([n]), np.zeros_like(j), j, u, np.array([radius]))
+    return np.vstack([points, x[-1:]])
 
 
 def polyline_distances(a, b, samples):

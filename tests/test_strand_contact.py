@@ -4,6 +4,7 @@ points by golden-section search, pair sets by an O(n^2) search, and hand-built c
 import numpy as np
 import pytest
 import taichi as ti
+from references import curve_points
 
 from taichi_hair.rods import arrays
 from taichi_hair.rods.arrays import Vec3s1
@@ -59,34 +60,6 @@ def segment_distance(a0, a1, b0, b1, iterations=100):
 
 def reference_gap(radius, mean_length):
     return np.maximum(2, 1 + np.ceil(0.8 * np.pi * radius / mean_length)).astype(int)
-
-
-def node_curvatures(x, counts, s, i):
-    """Curvature vectors [k, 3] at nodes (s, i) [k]: the circle through nodes i - 1, i, i + 1,
-    (t_i - t_{i-1}) / mean edge length, zero at a strand's end nodes."""
-    interior = (i > 0) & (i + 1 < counts[s])
-    lo, mid, hi = np.maximum(i - 1, 0), i, np.minimum(i + 1, x.shape[1] - 1)
-    e0, e1 = x[s, mid] - x[s, lo], x[s, hi] - x[s, mid]
-    l0 = np.linalg.norm(e0, axis=1, keepdims=True)
-    l1 = np.linalg.norm(e1, axis=1, keepdims=True)
-    ok = interior[:, None] & (l0 > 0) & (l1 > 0)
-    k = (e1 / np.where(ok, l1, 1) - e0 / np.where(ok, l0, 1)) / np.where(ok, 0.5 * (l0 + l1), 1)
-    return np.where(ok, k, 0.0)
-
-
-def curve_points(x, counts, s, j, u, radius):
-    """Points [k, 3] at parameter u [k] of segment (s, j) [k] on the curve through the nodes the
-    contact uses: the chord point moved by -(l^2 / 2) u (1 - u) kappa(u), kappa interpolated
-    between the two nodes' curvatures (the parabola through both nodes with that curvature),
-    the move shortened to at most the strand's radius [S]."""
-    a0, a1 = x[s, j], x[s, j + 1]
-    u = u[:, None]
-    kappa = (1 - u) * node_curvatures(x, counts, s, j) + u * node_curvatures(x, counts, s, j + 1)
-    l2 = ((a1 - a0) ** 2).sum(1, keepdims=True)
-    offset = -0.5 * l2 * u * (1 - u) * kappa
-    size = np.linalg.norm(offset, axis=1, keepdims=True)
-    cap = radius[s][:, None]
-    return a0 + u * (a1 - a0) + np.where(size > cap, offset * cap / np.where(size > 0, size, 1), offset)
 
 
 def brute_pairs(x, counts, radius, gap, self_contact, held_strands=()):
