@@ -93,3 +93,35 @@ def curve_points(x, counts, s, j, u, radius):
     size = np.linalg.norm(offset, axis=1, keepdims=True)
     cap = radius[s][:, None]
     return a0 + u * (a1 - a0) + np.where(size > cap, offset * cap / np.where(size > 0, size, 1), offset)
+
+
+def greenhill_critical_moment(tension, span=40.0):
+    """Smallest twisting moment m = M L / B at which a straight rod, clamped (position and
+    direction) at both ends and pulled by the dimensionless tension tau = T L^2 / B > 0, can
+    buckle: Greenhill's problem. The linearised Kirchhoff rod's sideways displacement
+    w = x + i y obeys w'''' - i m w''' - tau w'' = 0 on z in [0, 1], so
+    w = a + b z + c exp(p z) + d exp(q z), p and q the roots of p^2 - i m p - tau = 0. The clamps
+    w = w' = 0 at both ends allow w != 0 where the 4 x 4 determinant vanishes; divided by
+    (p - q) exp((p + q) / 2) it is real, and its first sign change above m = 2 sqrt(tau) (below
+    which no rod buckles, however long) is bisected. As tau -> 0 it tends to Greenhill's 2.861 pi
+    (at tau = 0 itself q = 0 repeats the constant solution, so tau must be positive)."""
+    def clamped(m):
+        root = np.sqrt(complex(4.0 * tension - m * m))
+        p, q = (1j * m + root) / 2.0, (1j * m - root) / 2.0
+        rows = np.array([[1, 0, 1, 1], [0, 1, p, q],
+                         [1, 1, np.exp(p), np.exp(q)], [0, 1, p * np.exp(p), q * np.exp(q)]])
+        value = np.linalg.det(rows) / ((p - q) * np.exp((p + q) / 2.0))
+        return value.real
+
+    low = 2.0 * np.sqrt(tension)
+    grid = np.linspace(low + 1e-6 * (1.0 + low), low + span, 4000)
+    signs = np.sign([clamped(m) for m in grid])
+    first = int(np.flatnonzero(signs[:-1] != signs[1:])[0])
+    low, high = grid[first], grid[first + 1]
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        if np.sign(clamped(middle)) == signs[first]:
+            low = middle
+        else:
+            high = middle
+    return 0.5 * (low + high)

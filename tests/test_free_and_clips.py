@@ -1,6 +1,7 @@
 """Free strands (root="free"), clips that hold twist (hold_twist, turn_pin) and sliders
 (slide): forces against central differences of the energy, conserved momentum, the twist a
-turned clip puts in, a slider's motion against rigid-body mechanics, and bad input."""
+turned clip puts in, a slider's motion against rigid-body mechanics, the twist at which a rod
+between a clamp and a slider buckles against Greenhill's, and bad input."""
 
 import warnings
 
@@ -8,6 +9,8 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
+
+from references import greenhill_critical_moment
 
 CURLY_ELLIPTIC = th.Material(youngs_modulus=3e9, shear_modulus=1e9, radius=5e-5, density=1300.0,
                              ellipticity=4.0)
@@ -160,6 +163,63 @@ def test_clip_with_elliptic_curl_holds_twist_against_the_root_clamp():
     assert np.abs(gradient[-1]) > 0  # the clip carries the torque
     m1_after = sim.frames()["m1"][0, -1]
     assert m1_after @ m1_before == pytest.approx(-1.0, abs=1e-9)
+
+
+def test_twisted_rod_between_clamp_and_slider_buckles_at_greenhills_twist():
+    """cosseratbench's twist rod (1 m, radius 1 cm, G = E / 3, tension tau = T L^2 / B = 10,
+    40 elements; measured 0.9977 of Greenhill's twist):
+    clamped root, a clip on the last edge that holds its frame and slides along the axis. Its
+    straight shape is stable until the smallest eigenvalue of the stiffness (bending, the clip's
+    holonomy term, the tension's string stiffness) reaches zero; that twist is within 0.5 % of
+    Greenhill's (references.greenhill_critical_moment). The elastic stiffness is the central
+    difference of the forces (the energy's gradient, checked above) at the straight twisted rod;
+    the twist part is linear in the twist, so two twists give the threshold's eigenproblem."""
+    n, length, tau = 40, 1.0, 10.0
+    material = th.Material(youngs_modulus=1e6, shear_modulus=1e6 / 3, radius=0.01, density=1000.0)
+    bending = material.youngs_modulus * np.pi * material.radius ** 4 / 4
+    critical = greenhill_critical_moment(tau) * bending / (2 * material.shear_modulus * np.pi
+                                                           * material.radius ** 4 / 4)
+    sim = simulator(straight(n + 1, length), material, gravity=(0, 0, 0), dt=1e-6)
+    pid = sim.add_pin(0, -2, clamp=True, hold_twist=True, slide=(1.0, 0.0, 0.0))
+    rest = sim.positions().copy()
+    free = [(i, a) for a in (1, 2) for i in range(1, n - 1)]  # across the axis; the ends are held
+    nodes, axes = [i for i, _ in free], [a for _, a in free]
+    eps = 1e-7
+
+    def stiffness(twist):
+        for k in range(1, 33):  # in steps under pi: the held angle follows its nearest branch
+            sim.turn_pin(pid, twist * k / 32)
+            sim.step(1)
+        columns = []
+        for i, a in free:
+            difference = []
+            for sign in (1.0, -1.0):
+                x = rest.copy()
+                x[0, i, a] += sign * eps
+                sim.set_positions(x)
+                sim.update_twist()
+                difference.append(sim.elastic_forces()[0, nodes, axes])
+            columns.append(-(difference[0] - difference[1]) / (2 * eps))
+        jacobian = np.array(columns).T
+        return 0.5 * (jacobian + jacobian.T)
+
+    untwisted = stiffness(0.0)
+    twisted = stiffness(critical) - untwisted
+    tension = tau * bending / length ** 2
+    string = np.zeros_like(untwisted)  # T / l on the two sideways offsets each edge joins
+    index = {dof: row for row, dof in enumerate(free)}
+    for e in range(n):  # edge e joins nodes e and e + 1
+        for a in (1, 2):
+            for i, si in ((e, 1.0), (e + 1, -1.0)):
+                for j, sj in ((e, 1.0), (e + 1, -1.0)):
+                    if (i, a) in index and (j, a) in index:
+                        string[index[i, a], index[j, a]] += si * sj * tension / (length / n)
+    stable = untwisted + string
+    cholesky = np.linalg.cholesky(stable)
+    inverse = np.linalg.inv(cholesky)
+    growth = np.linalg.eigvalsh(-inverse @ twisted @ inverse.T)
+    threshold = 1.0 / growth.max()  # smallest twist fraction at which stable + s twisted is singular
+    assert abs(threshold - 1.0) < 5e-3
 
 
 def test_slider_pulls_a_free_strand_as_one_rigid_body():
