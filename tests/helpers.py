@@ -31,6 +31,27 @@ def central_difference_gradient(energy, x0, nodes, h=1e-6):
     return grad
 
 
+def force_jacobian(system, x0, dofs, h=1e-7):
+    """-d force / d x [len(dofs), len(dofs)] of strand 0 by central differences (float64) over
+    the listed (node, axis) pairs, rows and columns in that order; `system` is a Simulator or a
+    RodSystem (set_positions, update_twist, elastic_forces), its free material angles re-solved
+    at every probe (the forces at twist equilibrium). Leaves the system at x0."""
+    nodes, axes = [i for i, _ in dofs], [a for _, a in dofs]
+    columns = []
+    for i, a in dofs:
+        forces = []
+        for sign in (1.0, -1.0):
+            x = x0.copy()
+            x[0, i, a] += sign * h
+            system.set_positions(x)
+            system.update_twist()
+            forces.append(system.elastic_forces()[0, nodes, axes])
+        columns.append(-(forces[0] - forces[1]) / (2 * h))
+    system.set_positions(x0)
+    system.update_twist()
+    return np.array(columns).T
+
+
 def perturbed(x, scale, seed, keep_root=True):
     """x plus Gaussian noise of `scale` metres; the clamped root node stays where it is."""
     rng = np.random.default_rng(seed)

@@ -10,6 +10,7 @@ import pytest
 
 import taichi_hair as th
 
+from helpers import force_jacobian
 from references import greenhill_critical_moment
 
 CURLY_ELLIPTIC = th.Material(youngs_modulus=3e9, shear_modulus=1e9, radius=5e-5, density=1300.0,
@@ -185,24 +186,12 @@ def test_twisted_rod_between_clamp_and_slider_buckles_at_greenhills_twist(strain
     pid = sim.add_pin(0, -2, clamp=True, hold_twist=True, slide=(1.0, 0.0, 0.0))
     rest = sim.positions().copy()
     free = [(i, a) for a in (1, 2) for i in range(1, n - 1)]  # across the axis; the ends are held
-    nodes, axes = [i for i, _ in free], [a for _, a in free]
-    eps = 1e-7
 
     def stiffness(twist):
         for k in range(1, 33):  # in steps under pi: the held angle follows its nearest branch
             sim.turn_pin(pid, twist * k / 32)
             sim.step(1)
-        columns = []
-        for i, a in free:
-            difference = []
-            for sign in (1.0, -1.0):
-                x = rest.copy()
-                x[0, i, a] += sign * eps
-                sim.set_positions(x)
-                sim.update_twist()
-                difference.append(sim.elastic_forces()[0, nodes, axes])
-            columns.append(-(difference[0] - difference[1]) / (2 * eps))
-        jacobian = np.array(columns).T
+        jacobian = force_jacobian(sim, rest, free)
         return 0.5 * (jacobian + jacobian.T)
 
     untwisted = stiffness(0.0)

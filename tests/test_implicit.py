@@ -14,30 +14,12 @@ import taichi_hair as th
 from taichi_hair.rods import arrays
 from taichi_hair.rods.linalg import block_pentadiagonal_solve
 from taichi_hair.solver.system import RodSystem
+from helpers import force_jacobian
 from references import cantilever_elastica_tip, cantilever_first_frequency
 from test_pins import crossing_times, pendulum
 from test_step import BEAM, LENGTH, clamped_beam
 
 CURLY = dict(length=0.05, n_nodes=12, curl_radius=0.004, curl_pitch=0.01)
-
-
-def force_jacobian(rods, x0, nodes, h=1e-7):
-    """-d force / d x [3 len(nodes), 3 len(nodes)] of strand 0 by central differences (float64),
-    the material angles re-solved at every probe (the forces at twist equilibrium)."""
-    columns = []
-    for i in nodes:
-        for k in range(3):
-            forces = []
-            for sign in (1.0, -1.0):
-                x = x0.copy()
-                x[0, i, k] += sign * h
-                rods.set_positions(x)
-                rods.update_twist()
-                forces.append(rods.elastic_forces()[0, nodes].ravel())
-            columns.append(-(forces[0] - forces[1]) / (2 * h))
-    rods.set_positions(x0)
-    rods.update_twist()
-    return np.array(columns).T
 
 
 def stiffness_error(rods, x0, h=1e-7):
@@ -46,7 +28,7 @@ def stiffness_error(rods, x0, h=1e-7):
     rods.set_positions(x0)
     rods.update_twist()
     free = list(np.flatnonzero(rods.model.inv_mass.to_numpy()[0] > 0))
-    reference = force_jacobian(rods, x0, free, h)
+    reference = force_jacobian(rods, x0, [(i, k) for i in free for k in range(3)], h)
     rows = (3 * np.array(free)[:, None] + np.arange(3)).ravel()
     stiffness = rods.bending_stiffness()[0][np.ix_(rows, rows)]
     return np.abs(stiffness - reference).max() / np.abs(reference).max(), stiffness
