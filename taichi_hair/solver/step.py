@@ -42,7 +42,6 @@ TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 # angle is free in the twist solve)
 ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2, "free": 3}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
-LENGTHS_AFTER_CONTACT = 3  # length-only iterations after a projection with contacts ends unsatisfied
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
 # SHAKE follows the start-of-step constraint gradient while each iteration at least halves the
 # residual; slower than that (a head jump, a contact push) it switches to the current gradient
@@ -442,17 +441,6 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
             break
         solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
         it += 1
-    if ti.static(fl.contacts):
-        # friction that holds puts its nodes back in every iteration, so the alternation can
-        # stall with edges up to STALL_BELOW off; a few iterations of the lengths alone finish
-        # them, moving held nodes by about that residual x their edge (docs/model.md,
-        # "Collisions"). Not further off: that would pull nodes into the colliders.
-        extra = 0
-        while res >= sc.projection_tol and res < STALL_BELOW and extra < LENGTHS_AFTER_CONTACT:
-            solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
-            res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
-            extra += 1
-            it += 1
     return it, res
 
 
