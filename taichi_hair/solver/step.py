@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
                            Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
-from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction
+from .collisions import head_poses, head_rotate, strand_collide
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -422,8 +422,6 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     shake = 0
     if ti.static(fl.shake):
         shake = 1
-    if ti.static(fl.contacts):
-        strand_reset_friction(s, st)  # friction's cone holds on the step's totals
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
