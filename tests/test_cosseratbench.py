@@ -157,7 +157,29 @@ def test_capstan_rope_slides_off_past_the_holding_overhang_and_not_before():
 
 def test_twisted_rods_buckle_near_greenhills_critical_twist():
     """Six rods clamped at both ends, one end turned (a twist-holding clip) and sliding under
-    tension (a slider): the fitted critical twist within 5 % of Greenhill's at 20 elements."""
-    result = bench("twist", 20)
+    tension (a slider): the fitted critical twist within PyElastica's 1.1 % of Greenhill's at
+    25 elements (measured 0.69 %: the discrete rod's own threshold is 0.72 % late there; with
+    the clamps holding the tilted end chords the fit read 0.5 % early at 25 and 1.27 % at 50)."""
+    result = bench("twist", 25)
     assert result.outcome == "completed"
-    assert result.metrics["critical_twist_error"] < 0.05
+    assert result.metrics["critical_twist_error"] < 1.1e-2
+
+
+@pytest.mark.parametrize("n_elements", [20, 50])
+def test_clamped_ends_hold_the_curves_tangent_not_the_end_chord(n_elements):
+    """twist's rods start on a bump a (1 - cos 2 pi s / L) / 2 whose slope is zero at both
+    clamps: the clamped end elements point along the axis to second order, within
+    a (2 pi)^4 / 8 n^3 rad (1.6e-7 at 50 elements; the end chords tilt by a pi^2 / n, 2e-5),
+    every other element keeps its direction, and the rod keeps its length and its bump."""
+    rod = registry.load_experiment("twist").scenario.rods[0]
+    rest = _Strand(rod, n_elements).rest_nodes
+    chords = np.diff(rod.nodes(n_elements), axis=0)
+    edges = np.diff(rest, axis=0)
+    t = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+    tilt = np.abs(np.cross(t[[0, -1]], [1.0, 0.0, 0.0])).max()
+    assert tilt < 1.1e-4 * (2 * np.pi)**4 / (8 * n_elements**3)
+    chord = chords[[0, -1]] / np.linalg.norm(chords[[0, -1]], axis=1, keepdims=True)
+    assert np.abs(np.cross(chord, [1.0, 0.0, 0.0])).max() > 0.9e-4 * np.pi**2 / n_elements
+    assert np.allclose(t[1:-1], chords[1:-1] / np.linalg.norm(chords[1:-1], axis=1, keepdims=True))
+    assert np.allclose(np.linalg.norm(edges, axis=1), rod.length / n_elements)
+    assert np.isclose(rest[:, 1].max() - rest[0, 1], 1e-4 * rod.length, rtol=0.05)

@@ -17,7 +17,9 @@ How a scenario maps onto taichi_hair (one rule for every scenario, no cases per 
   starts stretched (`rest_arc_length`) starts at the scenario's nodes, stretched. Otherwise
   such a rod starts at its unstretched length. The rest shape: every element keeps the direction it has in
   the scenario and gets length L / n_elements, walked from a clamped root, or both ways from
-  the rod's middle node otherwise (two crossing ropes still cross there). Unstretched rods
+  the rod's middle node otherwise (two crossing ropes still cross there); the element at a
+  clamped end points along the centerline's tangent there, to second order (the direction
+  the clamp holds; the end chord is first order). Unstretched rods
   whose polyline chords fall short of L / n_elements get the same treatment, so the strand's
   length is always the scenario's unstretched length.
 - Ends: the root is a held end (the driven one if its motion moves it, rather than only
@@ -162,7 +164,8 @@ class _Strand:
         # point in place (two ropes crossing still cross where they did, and a symmetric rope
         # stays symmetric)
         clamped_root = rod.condition(self.root_end) is EndCondition.CLAMPED
-        self.rest_nodes = _unstretched(nodes, rod.length, 0 if clamped_root else None)
+        clamped = (clamped_root, rod.condition(self.tip_end) is EndCondition.CLAMPED)
+        self.rest_nodes = _unstretched(nodes, rod.length, 0 if clamped_root else None, clamped)
         # a clip turns about its own edge, which may point against the scenario's axis
         edge = self.rest_nodes[-1] - self.rest_nodes[-2]
         self.tip_sign = (float(np.sign(edge @ self.axis[self.tip_end])) if self.tip_motion is not None
@@ -184,15 +187,38 @@ class _Strand:
         return 0 if end is self.root_end else len(self.rest_nodes) - 1
 
 
-def _unstretched(nodes: np.ndarray, length: float, anchor: int | None = 0) -> np.ndarray:
+def _clamp_tangent(nodes: np.ndarray) -> np.ndarray:
+    """The unit tangent of the curve through `nodes` [n + 1, 3] (evenly spaced along it) at
+    node 0, to second order: (-3 x_0 + 4 x_1 - x_2) / 2h. The first chord is a first-order
+    estimate: on twist's bump, height a (1 - cos 2 pi s / L) / 2 with zero slope at the clamps,
+    it tilts by a pi^2 / n (2e-5 rad at 50 elements), this by a (2 pi)^4 L^3 / 8 n^3 (2e-7)."""
+    if len(nodes) < 3:
+        t = nodes[1] - nodes[0]
+    else:
+        t = -3.0 * nodes[0] + 4.0 * nodes[1] - nodes[2]
+    return t / np.linalg.norm(t)
+
+
+def _unstretched(nodes: np.ndarray, length: float, anchor: int | None = 0,
+                 clamped: tuple[bool, bool] = (False, False)) -> np.ndarray:
     """The polyline with the same element directions and every element L / n long, walked both
     ways from node `anchor`, which stays where it is; anchor None: from the polyline's middle
     point (the middle node, or the middle of the middle element), so that a symmetric rope stays
     symmetric. Measured: anchored at node n // 2 of the 51-element crossing ropes, the walk
     shifted them by 0.1 mm off their symmetric start, and the upper rope then slid 6 mm along the
-    lower one (a discrete rope rests lower with the load near a node), 6e-3 of shape error."""
+    lower one (a discrete rope rests lower with the load near a node), 6e-3 of shape error.
+
+    clamped (first end, last end): a clamped end's element points along the curve's tangent
+    at that end (`_clamp_tangent`), the direction the clamp holds. Measured on twist (50
+    elements): with the first and last chords' tilt held by the clamps, a straight rod was not
+    an equilibrium, and a rod held stable just below Greenhill's twist crept towards a bow that
+    the twist amplified; the fit counted the creep as growth and read 0.987 of the twist."""
     e = np.diff(nodes, axis=0)
     t = e / np.linalg.norm(e, axis=1, keepdims=True)
+    if clamped[0]:
+        t[0] = _clamp_tangent(nodes)
+    if clamped[1]:
+        t[-1] = -_clamp_tangent(nodes[::-1])
     walked = np.vstack([np.zeros(3), np.cumsum(t * (length / len(e)), axis=0)])
     if anchor is not None:
         return nodes[anchor] + walked - walked[anchor]
