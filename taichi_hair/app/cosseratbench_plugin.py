@@ -131,13 +131,14 @@ class _Strand:
             raise NotImplementedError("taichi_hair needs at least 2 elements per rod")
         start, end = rod.condition(End.START), rod.condition(End.END)
         nodes = rod.nodes(n_elements)
-        tangent = {End.START: nodes[1] - nodes[0], End.END: nodes[-1] - nodes[-2]}
+        # the direction a clamp holds, the one its turns go about
+        tangent = {End.START: _clamp_tangent(nodes), End.END: -_clamp_tangent(nodes[::-1])}
         self.axis = {}
         for e in End:
             motion = rod.motion(e)
             if motion is not None:
                 self.axis[e] = (motion.axis if motion.slides_along is not None
-                                else tangent[e] / np.linalg.norm(tangent[e]))
+                                else tangent[e])
         turns = {e: rod.motion(e) is not None and _twist_only(rod.motion(e), self.axis[e]) for e in End}
         if start is EndCondition.FREE or end is EndCondition.FREE:  # both free: a free root, as given
             self.reversed = start is EndCondition.FREE and end is not EndCondition.FREE
