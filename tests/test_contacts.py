@@ -238,3 +238,27 @@ def test_default_head_mesh_keeps_hair_out_while_shaking():
         closest = min(closest, mesh_signed_distance(local, model.vertices, model.faces).min())
     print(f"\nmesh head: closest free node to the exact surface {closest * 1e3:.2f} mm (margin 2 mm)")
     assert closest > 0.0
+
+
+@pytest.mark.parametrize("friction", [0.3, 0.7])
+def test_strand_on_an_inclined_plane_slides_at_coulombs_rate_or_holds(friction):
+    """A free straight strand lying across a plane tilted by 30 degrees: with friction below
+    tan 30 = 0.577 it slides down the slope at g (sin a - friction cos a) (2.36 m/s^2 at 0.3;
+    within 2 % over 0.3 s), above it it stays put (under a micrometre)."""
+    tilt = np.radians(30.0)
+    normal = np.array([-np.sin(tilt), 0.0, np.cos(tilt)])
+    down = np.array([-np.cos(tilt), 0.0, -np.sin(tilt)])  # along the slope
+    margin = 0.002
+    nodes = np.stack([np.zeros(11), np.linspace(0.0, 0.1, 11), np.zeros(11)], axis=1) + margin * normal
+    plane = th.Plane(point=(0.0, 0.0, 0.0), normal=tuple(normal), margin=margin, friction=friction)
+    sim = quiet(lambda: th.Simulator(th.Groom.from_polylines(nodes[None]), th.Material(), root="free",
+                                     colliders=(plane,), dt=1e-3))
+    seconds = 0.3
+    sim.step(int(round(seconds / sim.dt)))
+    travelled = (sim.positions()[0] - nodes) @ down
+    expected = 0.5 * 9.81 * max(0.0, np.sin(tilt) - friction * np.cos(tilt)) * seconds ** 2
+    if expected > 0:
+        assert np.allclose(travelled, expected, rtol=2e-2)
+    else:
+        assert np.abs(travelled).max() < 1e-6
+    assert np.abs((sim.positions()[0] - nodes) @ normal).max() < 1e-6  # on the plane, at the margin

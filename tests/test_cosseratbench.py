@@ -145,14 +145,15 @@ def test_crossing_ropes_rest_on_each_other_without_passing_through():
 
 
 def test_capstan_rope_slides_off_past_the_holding_overhang_and_not_before():
-    """A free-free rope over a cylinder with friction 0.3 (100 elements, its default): at half
-    the holding overhang it creeps under a centimetre in 2 s; at 1.5 times it slides several
-    times further (off the cylinder)."""
-    held = bench("capstan", 100, overhang=0.5)
-    slid = bench("capstan", 100, overhang=1.5)
+    """A free-free rope over a cylinder with friction 0.3 (100 elements, its default), against
+    the heavy-rope capstan equation's longest overhang that holds: at 0.95 of it the rope holds
+    (measured: 3.7 mm in 2 s; friction limited by each projection iteration's own push slid it
+    off, 0.21 m), at 1.1 times it slides off the cylinder (0.21 m)."""
+    held = bench("capstan", 100, overhang=0.95)
+    slid = bench("capstan", 100, overhang=1.1)
     assert held.outcome == slid.outcome == "completed"
     assert held.metrics["slide"] < 0.01
-    assert slid.metrics["slide"] > 5 * held.metrics["slide"]
+    assert slid.metrics["slide"] > 0.1
 
 
 def test_twisted_rods_buckle_near_greenhills_critical_twist():

@@ -63,7 +63,9 @@ class RodModel:
         return self.groom.max_nodes
 
 
-HIST_V, HIST_DX, HIST_ELASTIC, HIST_CHANGE = range(4)  # RodState.history's slots
+# RodState.history's slots: the friction totals of the step's projection (every integrator),
+# then the implicit step's history
+FRICTION_SHIFT, FRICTION_PUSH, HIST_V, HIST_DX, HIST_ELASTIC, HIST_CHANGE = range(6)
 
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
@@ -97,13 +99,16 @@ class RodState:
     strand_scalar: object  # [S] float
     counters: object  # [S, 8] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
-    # the implicit step's history and system (solver/implicit.py); [1, 1] placeholders when
-    # the integrator is explicit
-    # history [S, N, 4] vec3 (one array: Taichi caps a kernel's argument count):
-    # [..., HIST_V] the velocities one step back [m/s], [..., HIST_DX] the last step's
-    # displacements [m], [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none
-    # yet), [..., HIST_CHANGE] this step's elastic forces minus those [N]
+    # history [S, N, 6] vec3 with the implicit step, [S, N, 2] without (one array: Taichi caps
+    # a kernel's argument count): [..., FRICTION_SHIFT] the friction shift given to the node so
+    # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m]
+    # (collisions.contact_with_friction); the implicit step's history: [..., HIST_V] the
+    # velocities one step back [m/s], [..., HIST_DX] the last step's displacements [m],
+    # [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none yet), [..., HIST_CHANGE]
+    # this step's elastic forces minus those [N]
     history: object = None
+    # the implicit step's system (solver/implicit.py); [1, 1] placeholders when the integrator
+    # is explicit
     # [S, N-1]: the edges' tensions at the last step [N] (the implicit step's, or an extensible
     # strand's, accumulated by its projection; a [1, 1] placeholder otherwise)
     tension: object = None
@@ -158,7 +163,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        history=arrays.vectors(3, nodes + (4,)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
+        history=arrays.vectors(3, (s_count, n_max, 6 if implicit else 2)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
         blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
         block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )

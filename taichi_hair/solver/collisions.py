@@ -3,7 +3,8 @@ projection (see step.strand_project), alternating with the inextensibility solve
 
 import taichi as ti
 
-from ..rods.arrays import mat_block, point, step_displacement, vec_block
+from ..rods.arrays import mat_block, point, step_displacement, vec3, vec_block
+from ..rods.state import FRICTION_PUSH, FRICTION_SHIFT
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -41,16 +42,52 @@ def from_head(head: ti.template(), k, p):
 
 
 @ti.func
-def resolve_contact(p, p_prev, d, n, margin, friction):
-    """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin
-    and shrink its slip along the surface since p_prev by friction x push depth (Coulomb)."""
+def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
+    """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin,
+    with Coulomb friction on the step's totals: shift [m] is the friction displacement applied
+    to the node so far this step, pushed [m] its pushes so far. The node's slip along the
+    surface since p_prev, less that shift, is cancelled by a new shift of at most friction x
+    (pushed + this push): static friction while the slip fits in the cone, else it is
+    shortened by the cone's length. Returns (moved, new shift, new pushed)."""
     push = margin - d
-    moved = p + push * n
+    total = pushed + push
+    # only the shift's part along this surface is taken back: its normal part, left by an
+    # earlier iteration's normal, keeps p out of the surface like a push
+    moved = p + push * n - (shift - shift.dot(n) * n)
     slip = moved - p_prev
     tangential = slip - slip.dot(n) * n
     length = tangential.norm()
+    new_shift = vec3(0.0)
     if length > 1e-12:
-        moved -= ti.min(1.0, friction * push / length) * tangential
+        new_shift = -ti.min(1.0, friction * total / length) * tangential
+    return moved + new_shift, new_shift, total
+
+
+@ti.func
+def strand_reset_friction(s, st: ti.template()):
+    """A new step's friction totals for strand s: no shift, no push yet."""
+    for i in range(st.history.shape[1]):
+        st.history[s, i, FRICTION_SHIFT] = vec3(0.0)
+        st.history[s, i, FRICTION_PUSH] = vec3(0.0)
+
+
+@ti.func
+def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_prev, d, n, margin, friction,
+                          st: ti.template()):
+    """resolve_contact for node i of strand s in a collider's frame (head coordinates at pose
+    now when on_head), its step totals (st.history's FRICTION_SHIFT in world axes and
+    FRICTION_PUSH) read and written back, so a node touching a head and a world collider in one
+    step keeps one budget. Returns the moved point in the world."""
+    shift = st.history[s, i, FRICTION_SHIFT]
+    if on_head:
+        shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
+    moved, shift, total = resolve_contact(local, local_prev, d, n, margin, friction, shift,
+                                          st.history[s, i, FRICTION_PUSH].x)
+    if on_head:
+        shift = head_rotate(head, now, shift)
+        moved = from_head(head, now, moved)
+    st.history[s, i, FRICTION_SHIFT] = shift
+    st.history[s, i, FRICTION_PUSH] = vec3(total, 0.0, 0.0)
     return moved
 
 
@@ -140,10 +177,8 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             if i == 0 and d < -margin:
                 break
             if md.inv_mass[s, i] > 0.0 and d < margin:
-                local = resolve_contact(local, local_prev, d, n, margin, co.params[c][2])
-                if on_head:
-                    local = from_head(head, now, local)
-                place_contact(s, i, local, springs, md, st)
+                place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
+                                                          margin, co.params[c][2], st), springs, md, st)
                 pushes += 1
     if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
@@ -155,10 +190,8 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             if i == 0 and d < -margin:
                 break
             if md.inv_mass[s, i] > 0.0 and d < margin:
-                local = resolve_contact(local, local_prev, d, n, margin, co.sdf_meta[1][2])
-                if on_head:
-                    local = from_head(head, now, local)
-                place_contact(s, i, local, springs, md, st)
+                place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
+                                                          margin, co.sdf_meta[1][2], st), springs, md, st)
                 pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -171,7 +204,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         local_prev = point(x_prev, s, i) - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
                         if d < dr.tools[k][2]:
-                            place_contact(s, i, centre + resolve_contact(local, local_prev, d, n, dr.tools[k][2],
-                                                                         dr.tools[k][3]), springs, md, st)
+                            # in the hand's frame, which does not turn: shift in world axes
+                            moved = contact_with_friction(s, i, False, head, now, local, local_prev, d, n,
+                                                          dr.tools[k][2], dr.tools[k][3], st)
+                            place_contact(s, i, centre + moved, springs, md, st)
                             pushes += 1
     return pushes

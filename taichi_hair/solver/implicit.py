@@ -31,7 +31,7 @@ from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.frames import material_directors
 from ..rods.rod import edge_directors, first_node, node_edges, node_turn, rotation_scalars
 from ..world.forces import grab_force, grab_stiffness
-from .collisions import head_poses, strand_collide
+from .collisions import head_poses, strand_collide, strand_reset_friction
 from .pins import HELD_DAMPING
 
 mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat_block)
@@ -436,6 +436,7 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     if not predict:
         if ti.static(fl.contacts):
             now, prev = head_poses(k, fl)
+            strand_reset_friction(s, st)  # each correction's springs take one pass's friction
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, True)
     failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
     if predict:

@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
                            Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
-from .collisions import head_poses, head_rotate, strand_collide
+from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -42,6 +42,7 @@ TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
 # angle is free in the twist solve)
 ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2, "free": 3}
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
+LENGTHS_AFTER_CONTACT = 3  # length-only iterations after a projection with contacts ends unsatisfied
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
 # SHAKE follows the start-of-step constraint gradient while each iteration at least halves the
 # residual; slower than that (a head jump, a contact push) it switches to the current gradient
@@ -422,6 +423,8 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     shake = 0
     if ti.static(fl.shake):
         shake = 1
+    if ti.static(fl.contacts):
+        strand_reset_friction(s, st)  # friction's cone holds on the step's totals
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
@@ -439,6 +442,17 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
             break
         solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
         it += 1
+    if ti.static(fl.contacts):
+        # friction that holds puts its nodes back in every iteration, so the alternation can
+        # stall with edges up to STALL_BELOW off; a few iterations of the lengths alone finish
+        # them, moving held nodes by about that residual x their edge (docs/model.md,
+        # "Collisions"). Not further off: that would pull nodes into the colliders.
+        extra = 0
+        while res >= sc.projection_tol and res < STALL_BELOW and extra < LENGTHS_AFTER_CONTACT:
+            solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
+            res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
+            extra += 1
+            it += 1
     return it, res
 
 

@@ -5,7 +5,8 @@ grid. Each rides on the head (`attached="head"`: given in head coordinates, movi
 head's rigid transform) or stays in the world (`attached="world"`). A node closer than `margin`
 [m] (the hair layer's thickness) to the surface is pushed out to the margin along the surface
 normal, and its motion along the surface, relative to the collider, is reduced by Coulomb
-friction `friction` (position-based: the tangential slip shrinks by friction x push depth).
+friction `friction` (position-based: over one step's projection iterations the friction shift
+given to a node stays within friction x the sum of its pushes; docs/model.md, "Collisions").
 """
 
 from dataclasses import dataclass
