@@ -58,10 +58,11 @@ class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
     dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
-        with strict=True). Each `step` call takes the tighter of the starting shape's bound and
-        the current shape's: a strand that folds sharper than it started (a rope piling on a
-        floor) is stiffer in bending and gets more substeps while it is folded
-        (`stats()["substeps"]`, `stable_dt`); strict=True checks the starting shape only.
+        with strict=True). The bound is that of the starting shape, taken again at the current
+        shape by every `step` call and only ever tightened: a strand that folds sharper than it
+        started (a rope piling on a floor) is stiffer in bending and gets more substeps
+        (`stats()["substeps"]`, `stable_dt`; `save_state` keeps the bound); strict=True checks
+        the starting shape only.
         gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
         strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
     wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
@@ -200,7 +201,6 @@ class Simulator:
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_shape("the shape the colliders left the groom in at the start (sharp bends)")
-        self._start_bound = self.bound  # the starting shape's: step() tightens it to the current shape's
         if self.substeps > 1:
             warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
                           f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
@@ -291,14 +291,18 @@ class Simulator:
         st.x_prev.copy_from(st.x)
         self._reset_counters()
 
-    def _tighten_bound_to_shape(self, cause: str, base=None) -> None:
-        """self.bound := `base` (default: the bound so far), tightened to the bending bound at the
-        strands' current shape (a sharper turn stiffens bending: stability.stable_time_step), and
-        the substeps it needs (ValueError past max_substeps, naming `cause`)."""
-        bound = self._bending.bound(half_turns(self.positions(), self.groom.node_counts), self.control.drag,
-                                    self.stability_factor)
-        self.bound = (self.bound if base is None else base).tightened(bound, cause)
-        self.substeps = self._substeps(self.strict)
+    def _tighten_bound_to_shape(self, cause: str) -> None:
+        """The bound so far, tightened to the bending bound at the strands' current shape (a
+        sharper turn stiffens bending: stability.stable_time_step), and the substeps it needs
+        (ValueError past max_substeps, naming `cause`)."""
+        self._tighten_bound(self._bending.bound(half_turns(self.positions(), self.groom.node_counts),
+                                                self.control.drag, self.stability_factor), cause)
+
+    def _tighten_bound(self, dt: float, cause: str) -> None:
+        """The bound so far, or dt [s] where that is tighter (named by `cause`), and its substeps."""
+        if dt < self.bound.dt:
+            self.bound = self.bound.tightened(dt, cause)
+            self.substeps = self._substeps(self.strict)
 
     def _substeps(self, strict) -> int:
         """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
@@ -369,10 +373,10 @@ class Simulator:
 
     # ---- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1, timers=None) -> None:
-        """Advance n steps of dt (each maybe substepped: the explicit step's bound is the tighter
-        of the starting shape's and that of the shape where this call starts, so a strand bent
-        sharper than it started gets more substeps; not with strict=True, which checks the
-        starting shape only). On blow-up the state is rolled back to
+        """Advance n steps of dt (each maybe substepped: the explicit step's bound is taken again
+        at the shape where this call starts and only tightens, so a strand bent sharper than it
+        started gets more substeps; not with strict=True, which checks the starting shape
+        only). On blow-up the state is rolled back to
         where this call began and SimulationDiverged is raised. With `timers` (a callable
         name -> context manager that synchronises), or with hair interaction, every stage runs
         as its own kernel; otherwise many substeps run in one fused launch."""
@@ -380,10 +384,10 @@ class Simulator:
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         n = int(n)
         if self.integrator == "explicit" and not self.strict:
-            # a strand bent sharper than it started is stiffer: the bound follows the shape, a
-            # function of the state alone, so a run resumed from a saved state steps as it did
-            self._tighten_bound_to_shape(f"the strands' sharpest bend now (at t = {self.time:.4g} s)",
-                                         self._start_bound)
+            # a strand bent sharper than it started is stiffer: the bound follows the shape and
+            # never loosens (a shape read once per call misses the folds inside it; a checkpoint
+            # keeps the bound, so a resumed run steps as the uninterrupted one)
+            self._tighten_bound_to_shape(f"the strands' sharpest bend so far (at t = {self.time:.4g} s)")
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps
