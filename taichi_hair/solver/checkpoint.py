@@ -16,7 +16,7 @@ def pose_rows(rotation, translation):
 
 def save_state(sim, path, extra=None) -> None:
     """Write the dynamic state (positions, velocities, material angles, time, step count,
-    head pose, the explicit step's bound so far) to `path` as .npz, atomically (a temporary file renamed into place), so a
+    head pose) to `path` as .npz, atomically (a temporary file renamed into place), so a
     crash mid-write leaves the previous checkpoint intact. `extra`: a dict of numbers or
     arrays stored alongside as `extra_<name>` (the runner's frame count), part of the same
     atomic record; `load_state` ignores them."""
@@ -27,7 +27,7 @@ def save_state(sim, path, extra=None) -> None:
              theta=sim.state.theta.to_numpy(), root_t=sim.state.root_t.to_numpy(),
              root_u=sim.state.root_u.to_numpy(), time=sim.time, steps=sim.steps_taken,
              head=pose_rows(*sim._head), head_prev=pose_rows(*sim._head_prev),
-             shape=np.array([sim.groom.n_strands, sim.groom.max_nodes]), stable_dt=sim.stable_dt)
+             shape=np.array([sim.groom.n_strands, sim.groom.max_nodes]))
     os.replace(tmp, path)
 
 
@@ -37,7 +37,7 @@ def load_state(sim, path) -> None:
     try:
         with np.load(path) as data:
             saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
-            saved.update({k: data[k] for k in ("root_t", "root_u", "stable_dt") if k in data})  # older files lack them
+            saved.update({k: data[k] for k in ("root_t", "root_u") if k in data})  # older files lack them
     except (OSError, KeyError, ValueError) as err:
         raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
     expected = [sim.groom.n_strands, sim.groom.max_nodes]
@@ -56,6 +56,3 @@ def load_state(sim, path) -> None:
             getattr(sim.state, k).from_numpy(saved[k].astype(arrays.np_float()))
     sim._orient_roots()
     sim.update_frames()
-    if "stable_dt" in saved and sim.integrator == "explicit" and not sim.strict:
-        # the bound only tightens as the strands fold (Simulator.step): resume with the run's
-        sim._tighten_bound(float(saved["stable_dt"]), "the sharpest bend the saved run had reached")

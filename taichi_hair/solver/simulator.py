@@ -12,8 +12,8 @@ from ..rods import arrays
 from ..rods.groom import Groom
 from ..progress import ProgressBar
 from ..runtime import ensure_init
-from .stability import (DEFAULT_STABILITY_FACTOR, BendingLimits, SimulationDiverged, half_turns, likely_cause,
-                        scene_bound, substeps_for)
+from .stability import (DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, scene_bound,
+                        stable_time_step, substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
 from ..world.scene import _host_distance, check_common_inputs
@@ -58,12 +58,7 @@ class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
     dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
-        with strict=True). The bound is that of the starting shape, taken again at the current
-        shape by every `step` call and only ever tightened: a strand that folds sharper than it
-        started (a rope piling on a floor) is stiffer in bending and gets more substeps
-        (`stats()["substeps"]`, `stable_dt`; `save_state` keeps the bound); strict=True checks
-        the starting shape only.
-        gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
+        with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
         strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
     wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
     twist: "quasistatic" (default: Newton on dE/dtheta = 0 per strand, the energy-consistent
@@ -84,8 +79,7 @@ class Simulator:
         contact passes alternating with it (solver/strand_contact.py; explicit integrator).
     max_speed [m/s]: a node faster than this counts as a blow-up.
     max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
-        bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound,
-        here or by the `step` call at which its shape first needs more (the state unchanged).
+        bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
     root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
         the head-carried root frame from node 0 on, docs/model.md "The clamp at the root"),
         "pinned" (node 0 rides on the head, node 1 is free: the strand swings freely about its
@@ -174,9 +168,6 @@ class Simulator:
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
                                  factor=stability_factor, kmoch=twist == "kmoch")
-        self.strict = strict
-        self.stability_factor = stability_factor
-        self._bending = BendingLimits.of(groom, self.model.materials, kmoch=twist == "kmoch")
         self.substeps = self._substeps(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
@@ -200,7 +191,7 @@ class Simulator:
         self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
         if self.plan.contacts:
             self._resolve_initial_contacts()
-            self._tighten_bound_to_shape("the shape the colliders left the groom in at the start (sharp bends)")
+            self._tighten_bound_to_start(strict, stability_factor)
         if self.substeps > 1:
             warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
                           f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
@@ -291,18 +282,15 @@ class Simulator:
         st.x_prev.copy_from(st.x)
         self._reset_counters()
 
-    def _tighten_bound_to_shape(self, cause: str) -> None:
-        """The bound so far, tightened to the bending bound at the strands' current shape (a
-        sharper turn stiffens bending: stability.stable_time_step), and the substeps it needs
-        (ValueError past max_substeps, naming `cause`)."""
-        self._tighten_bound(self._bending.bound(half_turns(self.positions(), self.groom.node_counts),
-                                                self.control.drag, self.stability_factor), cause)
-
-    def _tighten_bound(self, dt: float, cause: str) -> None:
-        """The bound so far, or dt [s] where that is tighter (named by `cause`), and its substeps."""
-        if dt < self.bound.dt:
-            self.bound = self.bound.tightened(dt, cause)
-            self.substeps = self._substeps(self.strict)
+    def _tighten_bound_to_start(self, strict, stability_factor):
+        """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
+        x = self.positions()
+        start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
+        self.bound = self.bound.tightened(
+            stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
+                             kmoch=self.twist == "kmoch"),
+            "the shape the colliders left the groom in at the start (sharp bends)")
+        self.substeps = self._substeps(strict)
 
     def _substeps(self, strict) -> int:
         """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
@@ -373,21 +361,13 @@ class Simulator:
 
     # ---- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1, timers=None) -> None:
-        """Advance n steps of dt (each maybe substepped: the explicit step's bound is taken again
-        at the shape where this call starts and only tightens, so a strand bent sharper than it
-        started gets more substeps; not with strict=True, which checks the starting shape
-        only). On blow-up the state is rolled back to
+        """Advance n steps of dt (each maybe substepped). On blow-up the state is rolled back to
         where this call began and SimulationDiverged is raised. With `timers` (a callable
         name -> context manager that synchronises), or with hair interaction, every stage runs
         as its own kernel; otherwise many substeps run in one fused launch."""
         if not (is_integer(n) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         n = int(n)
-        if self.integrator == "explicit" and not self.strict:
-            # a strand bent sharper than it started is stiffer: the bound follows the shape and
-            # never loosens (a shape read once per call misses the folds inside it; a checkpoint
-            # keeps the bound, so a resumed run steps as the uninterrupted one)
-            self._tighten_bound_to_shape(f"the strands' sharpest bend so far (at t = {self.time:.4g} s)")
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps

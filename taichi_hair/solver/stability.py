@@ -32,9 +32,8 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
 
     Bending: the stiffest discrete bending mode of a strand has omega ~ 4 / ds^2 sqrt(EI / rho A)
     and symplectic Euler needs h omega < 2, so h < factor * ds^2 sqrt(rho A / EI_eff) with
-    factor 0.5 and ds the shortest rest edge. EI_eff grows with the turning angle phi as
-    EI / cos^4(phi/2), because kb = 2 tan(phi/2) stiffens under large curvature (here the
-    groom's sharpest turn; BendingLimits.bound takes any shape's).
+    factor 0.5 and ds the shortest rest edge. EI_eff grows with the rest turning angle phi as
+    EI / cos^4(phi/2), because kb = 2 tan(phi/2) stiffens under large curvature.
     Drag: alone, the explicit drag update needs h < 2 m / (drag l) = 2 rho A / drag. Together
     (x'' = -omega^2 x - gamma x', symplectic Euler) the step is stable iff h^2 omega^2 + 2 h gamma
     < 4, i.e. (h / h_bend)^2 + h / h_drag < 1: each bound alone is not enough when both are close
@@ -42,61 +41,26 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
     period-2 oscillation). factor applies to both bounds before they are combined.
     kmoch: the twist follows Kmoch's rule; curved elliptic strands get kmoch_bound_factor more.
     """
-    return BendingLimits.of(groom, materials, kmoch).bound(half_turns(groom.positions, groom.node_counts),
-                                                           drag, factor)
+    bound = math.inf
+    for s, m in enumerate(materials):
+        p = groom.strand(s)
+        e = np.diff(p, axis=0)
+        lengths = np.linalg.norm(e, axis=1)
+        cos_turn = np.clip(np.sum(e[1:] * e[:-1], axis=1) / (lengths[1:] * lengths[:-1]), -1.0, 1.0)
+        half_turn = 0.5 * np.arccos(cos_turn).max()
+        ei_eff = max(m.bending_stiffness) / math.cos(half_turn) ** 4
+        bend = factor * lengths.min() ** 2 * math.sqrt(m.linear_density / ei_eff)
+        if kmoch and m.ellipticity > 1.0 and half_turn > 0.0:
+            bend *= kmoch_bound_factor(m.ellipticity)
+        bound = min(bound, bend if drag <= 0 else
+                    _damped_bound(bend, factor * 2.0 * m.linear_density / drag))
+    return bound
 
 
-def half_turns(x: np.ndarray, node_counts: np.ndarray) -> np.ndarray:
-    """Per strand [S], half its sharpest turning angle between consecutive edges [rad], of
-    positions x [S, N, 3] [m] with node_counts [S] real nodes (0 for a strand of one edge)."""
-    e = np.diff(np.asarray(x, dtype=np.float64), axis=1)
-    length = np.linalg.norm(e, axis=2)
-    valid = np.arange(e.shape[1] - 1)[None, :] < (np.asarray(node_counts)[:, None] - 2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_turn = np.sum(e[:, 1:] * e[:, :-1], axis=2) / (length[:, 1:] * length[:, :-1])
-    cos_turn = np.where(valid & np.isfinite(cos_turn), cos_turn, 1.0)
-    return 0.5 * np.arccos(np.clip(cos_turn, -1.0, 1.0)).max(axis=1, initial=0.0)
-
-
-@dataclass(frozen=True)
-class BendingLimits:
-    """What each strand's bending bound depends on besides its shape, per strand [S]: the
-    shortest rest edge [m], the linear density [kg/m], the larger bending stiffness [N m^2], and
-    Kmoch's extra factor (kmoch_bound_factor on a strand whose rest shape is curved and elliptic
-    under twist='kmoch', else 1: decided on the rest shape, so a straight strand that bends
-    does not switch to it)."""
-
-    shortest: np.ndarray
-    linear_density: np.ndarray
-    bending_stiffness: np.ndarray
-    kmoch: np.ndarray
-
-    @classmethod
-    def of(cls, groom, materials, kmoch: bool) -> "BendingLimits":
-        counts = np.asarray(groom.node_counts)
-        edges = np.linalg.norm(np.diff(groom.positions, axis=1), axis=2)
-        real = np.arange(edges.shape[1])[None, :] < (counts[:, None] - 1)
-        curved = half_turns(groom.positions, counts) > 0.0
-        return cls(shortest=np.where(real, edges, np.inf).min(axis=1),
-                   linear_density=np.array([m.linear_density for m in materials], dtype=np.float64),
-                   bending_stiffness=np.array([max(m.bending_stiffness) for m in materials], dtype=np.float64),
-                   kmoch=np.array([kmoch_bound_factor(m.ellipticity) if kmoch and m.ellipticity > 1.0 and c else 1.0
-                                   for m, c in zip(materials, curved)]))
-
-    def bound(self, half_turn: np.ndarray, drag: float, factor: float) -> float:
-        """The bound [s] for strands whose sharpest turns are 2 half_turn [S] [rad] (half_turns)."""
-        ei_eff = self.bending_stiffness / np.cos(half_turn) ** 4
-        bend = factor * self.shortest ** 2 * np.sqrt(self.linear_density / ei_eff) * self.kmoch
-        if drag > 0:
-            bend = _damped_bound(bend, factor * 2.0 * self.linear_density / drag)
-        return float(bend.min())
-
-
-def _damped_bound(bend, damp):
-    """The h > 0 with (h / bend)^2 + h / damp = 1 (written to stay accurate when damp >> bend);
-    elementwise on arrays."""
+def _damped_bound(bend: float, damp: float) -> float:
+    """The h > 0 with (h / bend)^2 + h / damp = 1 (written to stay accurate when damp >> bend)."""
     ratio = 2.0 * damp / bend
-    return bend * ratio / (1.0 + np.sqrt(1.0 + ratio * ratio))
+    return bend * ratio / (1.0 + math.sqrt(1.0 + ratio * ratio))
 
 
 def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> float:
