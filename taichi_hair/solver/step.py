@@ -51,6 +51,13 @@ SHAKE_RATE = 0.5
 # direction: SHAKE's chord matrix G0 M^-1 G0^T misjudges C's slope along G0 by cos(turn), and an
 # edge a contact turned across (a rope piling onto itself) made it overshoot without bound
 SHAKE_TURN_COS = 0.99
+# ... and while no node has left its prediction x_prev + h v by more than SHAKE_MOVE x its
+# predicted displacement h |v| + SHAKE_MOVE_FLOOR x its edge: a strand held taut (straight
+# between two held nodes) has a SHAKE solution only far off, long moves along the nearly parallel
+# edges that undo a small sag. There the step starts again from the prediction with the current
+# gradient, i.e. it is the fast projection's step (docs/model.md "Time step", SHAKE)
+SHAKE_MOVE = 2.0
+SHAKE_MOVE_FLOOR = 1e-3
 # a twist solve that stalled at the rounding floor above this scaled residual is a failed step
 TWIST_FAILED_ABOVE = 1e-3
 PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWITCH = (
@@ -355,7 +362,7 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
 
 @ti.func
 def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st: ti.template(),
-                        dr: ti.template()):
+                        dr: ti.template(), restart=0):
     """The projection's tridiagonal system G M^-1 G^T (diag, upper) and right-hand side C(x)
     (rhs), G along constraint_edge. An edge with both nodes held (a clip) is prescribed: its row
     is the identity with a zero right-hand side, outside the residual; with pins the diagonal is
@@ -365,7 +372,8 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
     (st.tension) and alpha_j = 2 |ebar| |e| (|e| + |ebar|) / EA, so that at convergence
     T_j = EA (|e| - |ebar|) / |ebar| exactly (docs/model.md, "Extensible strands"). Returns
     (max_j of that residual / |ebar^j|^2 over the free edges, 1 if an edge has turned past
-    SHAKE_TURN_COS from its G direction, else 0)."""
+    SHAKE_TURN_COS from its G direction, 2 if (under SHAKE, with restart) a node has left its
+    prediction by more than SHAKE_MOVE, else 0)."""
     res = 0.0
     turned = 0
     b = slider_vector(s, n, fl, dr)
@@ -389,17 +397,47 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
                 stretch = rest * (length + rest) / md.stiffness[s].w  # alpha / (2 |e|) [m^2/N]
                 c -= stretch * st.tension[s, j]
                 st.diag[s, j] += 2.0 * length * stretch / (h * h)
-            res = ti.max(res, ti.abs(c) / l2)
+            scaled = ti.abs(c) / l2
+            if not scaled <= res:  # so that a NaN residual stays NaN and fails the tolerance
+                res = scaled
             st.rhs[s, j] = c
             if ti.static(fl.shake):
                 if e.dot(g) < SHAKE_TURN_COS * ti.sqrt(e.dot(e) * g.dot(g)):
-                    turned = 1
+                    turned = ti.max(turned, 1)
+                if restart and md.inv_mass[s, j + 1] > 0.0:
+                    predicted = h * st.v[s, j + 1]
+                    moved = (st.dx[s, j + 1] - predicted).norm()
+                    if not moved <= SHAKE_MOVE * predicted.norm() + SHAKE_MOVE_FLOOR * md.rest_length[s, j]:
+                        turned = 2
             if ti.static(fl.pins):
                 st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
             g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
             st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(g_next)
     return res, turned
+
+
+@ti.func
+def untouched_prediction(s, n, h, md: ti.template(), st: ti.template()):
+    """1 if every free node still sits at the step's prediction (dx = h v exactly, as
+    strand_symplectic_euler left it), i.e. this is the step's first projection and SHAKE may
+    start again from there; 0 after a strand contact pass has moved nodes."""
+    untouched = 1
+    for i in range(n):
+        if md.inv_mass[s, i] > 0.0:
+            if (st.dx[s, i] - h * st.v[s, i]).norm() > 0.0:
+                untouched = 0
+    return untouched
+
+
+@ti.func
+def restart_from_prediction(s, n, h, md: ti.template(), st: ti.template()):
+    """Free nodes back at the step's prediction x_prev + h v (strand_symplectic_euler) with
+    their displacement dx = h v: SHAKE's moves so far are undone."""
+    for i in range(n):
+        if md.inv_mass[s, i] > 0.0:
+            st.dx[s, i] = h * st.v[s, i]
+            st.x[s, i] = st.x_prev[s, i] + st.dx[s, i]
 
 
 @ti.func
@@ -410,7 +448,10 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     projection of Goldenthal et al. 2007), or with fl.shake along the start-of-step gradient
     (SHAKE) while each iteration at least halves the residual (SHAKE_RATE) and no edge has turned
     past SHAKE_TURN_COS from its start (else, a head jump or a contact, it switches to the
-    current gradient). Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
+    current gradient), and while no node has left its prediction by more than SHAKE_MOVE (a
+    taut stretch: the step then starts again from the prediction with the current gradient;
+    only in a step's first projection of a scene without colliders, untouched_prediction).
+    Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
     projection_iterations, or at a stall (an iteration removing less than 10 % of a residual
     already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow progress
     is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root, pins) have
@@ -421,22 +462,27 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     res = 0.0
     previous = 0.0
     shake = 0
+    restart = 0
     if ti.static(fl.shake):
         shake = 1
+        if ti.static(not fl.contacts):
+            restart = untouched_prediction(s, n, sc.h, md, st)
     if ti.static(fl.contacts):
         strand_reset_friction(s, st)  # friction's cone holds on the step's totals
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
         previous = res
-        res, turned = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
+        res, turned = assemble_projection(s, n, shake, sc.h, fl, md, st, dr, restart * shake)
         switched = 0
         if ti.static(fl.shake):
-            if shake and (turned or (it >= 1 and res > SHAKE_RATE * previous)):
+            if shake and (turned or (it >= 1 and not res <= SHAKE_RATE * previous)):  # NaN too
                 # slow progress here is SHAKE's, not the rounding floor: no stall
                 shake = 0
                 switched = 1
-                assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
+                if turned == 2:
+                    restart_from_prediction(s, n, sc.h, md, st)
+                res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
         if (res < sc.projection_tol or it >= sc.projection_iterations
                 or (it >= 1 and not switched and res < STALL_BELOW and res > 0.9 * previous)):
             break
