@@ -85,3 +85,15 @@ def kill_run_after(args, out, cwd, frames, timeout):
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     return json.loads(progress.read_text())["frames_done"]
+
+
+def energy_rise(sim, chunks, steps, in_play):
+    """(max rise of sim.total_energy() above its start [J], max of in_play(sim) [J]) over
+    `chunks` calls of sim.step(steps): an undamped, undriven scene's energy may only fall."""
+    start = sim.total_energy()
+    rise, played = 0.0, 0.0
+    for _ in range(chunks):
+        sim.step(steps)
+        rise = max(rise, sim.total_energy() - start)
+        played = max(played, in_play(sim))
+    return rise, played

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
+from helpers import energy_rise
 from test_pins import crossing_times, pendulum
 
 
@@ -44,12 +45,7 @@ def test_shake_on_tight_elliptic_curls_gains_no_energy_and_keeps_lengths():
                            curl_radius=0.005, curl_pitch=0.01)
     material = th.Material(youngs_modulus=3e9, radius=40e-6, ellipticity=4.0)
     sim = th.Simulator(groom, material, dt=1e-3, projection="shake")
-    start = sim.total_energy()
-    rise, in_play = 0.0, 0.0
-    for _ in range(20):
-        sim.step(10)
-        rise = max(rise, sim.total_energy() - start)
-        in_play = max(in_play, sim.kinetic_energy() + sim.elastic_energy())
+    rise, in_play = energy_rise(sim, 20, 10, lambda sim: sim.kinetic_energy() + sim.elastic_energy())
     x = sim.positions()
     lengths = np.linalg.norm(np.diff(x, axis=1), axis=2)
     rest = np.linalg.norm(np.diff(groom.positions, axis=1), axis=2)
@@ -82,12 +78,7 @@ def test_shake_on_a_taut_stretch_between_root_and_pin_gains_no_energy():
     groom = th.Groom.straight(roots=[[0.0, 0.0, 0.0]], directions=[[1.0, 0.0, 0.0]], length=0.3, n_nodes=31)
     sim = th.Simulator(groom, th.Material(), dt=1e-3, drag=0.0, projection="shake")
     sim.add_pin(0, 15)
-    start = sim.total_energy()
-    rise, in_play = 0.0, 0.0
-    for _ in range(20):
-        sim.step(10)
-        rise = max(rise, sim.total_energy() - start)
-        in_play = max(in_play, sim.kinetic_energy() + sim.elastic_energy())
+    rise, in_play = energy_rise(sim, 20, 10, lambda sim: sim.kinetic_energy() + sim.elastic_energy())
     x = sim.positions()
     strain = np.abs(np.linalg.norm(np.diff(x, axis=1), axis=2) / 0.01 - 1).max()
     print(f"\nshake, pin mid: energy rise {rise / in_play:.1e} of the energy in play, strain {strain:.1e}")
