@@ -420,8 +420,9 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
 @ti.func
 def untouched_prediction(s, n, h, md: ti.template(), st: ti.template()):
     """1 if every free node still sits at the step's prediction (dx = h v exactly, as
-    strand_symplectic_euler left it), i.e. this is the step's first projection and SHAKE may
-    start again from there; 0 after a strand contact pass has moved nodes."""
+    strand_symplectic_euler left it), i.e. nothing has moved it since: this is the step's
+    first projection (SHAKE may start again from there) and no collider has pushed it yet; 0
+    after a strand contact pass or a collider has moved nodes."""
     untouched = 1
     for i in range(n):
         if md.inv_mass[s, i] > 0.0:
@@ -450,7 +451,9 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     past SHAKE_TURN_COS from its start (else, a head jump or a contact, it switches to the
     current gradient), and while no node has left its prediction by more than SHAKE_MOVE (a
     taut stretch: the step then starts again from the prediction with the current gradient;
-    only in a step's first projection of a scene without colliders, untouched_prediction).
+    only in a step's first projection of a scene without colliders, untouched_prediction);
+    a strand that a collider pushes at the start of its step's first projection takes the fast
+    projection for that step.
     Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
     projection_iterations, or at a stall (an iteration removing less than 10 % of a residual
     already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow progress
@@ -471,7 +474,16 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         strand_reset_friction(s, st)  # friction's cone holds on the step's totals
     while True:
         if ti.static(fl.contacts):
+            untouched = 0
+            if ti.static(fl.shake):
+                if it == 0 and shake:
+                    untouched = untouched_prediction(s, n, sc.h, md, st)
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
+            if untouched:
+                # a collider pushed the strand at the step's start: this step is the fast
+                # projection's (SHAKE with the pushes gained energy on curls resting on a head)
+                if not untouched_prediction(s, n, sc.h, md, st):
+                    shake = 0
         previous = res
         res, turned = assemble_projection(s, n, shake, sc.h, fl, md, st, dr, restart * shake)
         switched = 0
