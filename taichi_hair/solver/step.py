@@ -466,24 +466,25 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     previous = 0.0
     shake = 0
     restart = 0
+    first = 0  # still at the prediction: the step's first projection
     if ti.static(fl.shake):
         shake = 1
+        first = untouched_prediction(s, n, sc.h, md, st)
         if ti.static(not fl.contacts):
-            restart = untouched_prediction(s, n, sc.h, md, st)
+            restart = first
     if ti.static(fl.contacts):
         strand_reset_friction(s, st)  # friction's cone holds on the step's totals
     while True:
         if ti.static(fl.contacts):
-            untouched = 0
-            if ti.static(fl.shake):
-                if it == 0 and shake:
-                    untouched = untouched_prediction(s, n, sc.h, md, st)
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
-            if untouched:
-                # a collider pushed the strand at the step's start: this step is the fast
-                # projection's (SHAKE with the pushes gained energy on curls resting on a head)
-                if not untouched_prediction(s, n, sc.h, md, st):
-                    shake = 0
+            if ti.static(fl.shake):
+                if first:
+                    # a collider pushed the strand at the step's start: this step is the fast
+                    # projection's (SHAKE with the pushes gained energy on curls resting on a
+                    # head)
+                    if not untouched_prediction(s, n, sc.h, md, st):
+                        shake = 0
+                    first = 0
         previous = res
         res, turned = assemble_projection(s, n, shake, sc.h, fl, md, st, dr, restart * shake)
         switched = 0
