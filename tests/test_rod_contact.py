@@ -194,6 +194,19 @@ def test_bad_strand_contact_input_names_the_parameter():
         simulator(crossing_ropes(), ROPE, strand_contact=th.StrandContact(), integrator="implicit")
 
 
+def test_strand_contact_leaves_a_margin_on_the_explicit_bound():
+    """With strand contact the bound's default factor is 0.4, not 0.5 (contact pushes pumped
+    energy into the stiffest bending mode at 0.5: test_cosseratbench's pile); a factor the
+    scene names is taken as it is."""
+    groom = crossing_ropes()
+    plain = simulator(groom, ROPE)
+    touching = simulator(groom, ROPE, strand_contact=th.StrandContact())
+    named = simulator(groom, ROPE, strand_contact=th.StrandContact(), stability_factor=0.5)
+    assert (plain.stability_factor, touching.stability_factor, named.stability_factor) == (0.5, 0.4, 0.5)
+    assert touching.stable_dt == pytest.approx(0.8 * plain.stable_dt, rel=1e-12)
+    assert named.stable_dt == pytest.approx(plain.stable_dt, rel=1e-12)
+
+
 def test_fused_contact_steps_match_the_staged_one():
     """Three drivers run the same passes and give the same positions: many steps per launch on
     one thread (a small scene), a launch per step (step.advance_with_strand_contact, forced by

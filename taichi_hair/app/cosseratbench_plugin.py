@@ -70,7 +70,7 @@ from cosseratbench.trajectory import Trajectory
 
 import taichi_hair as th
 from taichi_hair import runtime
-from taichi_hair.solver.stability import DEFAULT_STABILITY_FACTOR
+from taichi_hair.solver.stability import default_stability_factor
 
 PRECISION = "float64"  # used when this adapter is the first to initialise Taichi
 PROJECTION_ITERATIONS = 1000  # the projection's cap (the Simulator's default is 100)
@@ -257,8 +257,17 @@ class TaichiHairSolver:
     def __init__(self, time_step_scale: float = 1.0) -> None:
         if not (math.isfinite(time_step_scale) and time_step_scale > 0):
             raise ValueError(f"time_step_scale must be > 0, got {time_step_scale!r}")
-        self.stability_factor = DEFAULT_STABILITY_FACTOR * time_step_scale
         self.time_step_scale = time_step_scale
+
+    def _stability_factor(self, scenario: Scenario) -> float:
+        """The Simulator's default factor for this scenario (0.4 with rod contact, else 0.5)
+        scaled by `time_step_scale`."""
+        return default_stability_factor(self._contact(scenario)) * self.time_step_scale
+
+    @staticmethod
+    def _contact(scenario: Scenario) -> bool:
+        """Whether the rods get StrandContact: several rods, or rods that can reach themselves."""
+        return len(scenario.rods) > 1 or scenario.self_contact
 
     # ---- what a run uses -----------------------------------------------------------------
     @staticmethod
@@ -294,7 +303,7 @@ class TaichiHairSolver:
                            "linearised BDF2 with lengths in the solve + fast projection (implicit)"),
             **steps,
             "frame_step": dt,
-            "stability_factor": self.stability_factor,
+            "stability_factor": self._stability_factor(scenario),
             "twist": "quasistatic",
             "precision": precision,
             "drag": self._drag(scenario),
@@ -307,9 +316,9 @@ class TaichiHairSolver:
 
     # ---- build and run -------------------------------------------------------------------
     def _build(self, scenario: Scenario, n_elements: int, n_frames: int):
-        if self.stability_factor >= 2.0 and self.integrator == "explicit":
+        if self._stability_factor(scenario) >= 2.0 and self.integrator == "explicit":
             raise NotImplementedError(
-                f"a time step {self.stability_factor / DEFAULT_STABILITY_FACTOR:g}x the default: "
+                f"a time step {self.time_step_scale:g}x the default: "
                 f"at or past the explicit step's limit, which taichi_hair refuses to run")
         strands = [_Strand(rod, n_elements) for rod in scenario.rods]
         roots = {s.rod.condition(s.root_end) for s in strands}
@@ -332,7 +341,7 @@ class TaichiHairSolver:
                 s.rod.condition(s.tip_end) is EndCondition.CLAMPED for s in strands)):
             raise NotImplementedError("a free rod or a clamped tip: the implicit step needs a held "
                                       "root and has no twist-holding clips")
-        contact = len(strands) > 1 or scenario.self_contact
+        contact = self._contact(scenario)
         if contact and self.integrator == "implicit":
             raise NotImplementedError("rod-rod contact: the implicit step has none")
         motions = [s for s in strands if s.motion is not None]
@@ -350,7 +359,7 @@ class TaichiHairSolver:
         dt, steps = self._steps_per_frame(scenario, n_frames)
         options = dict(dt=dt, gravity=tuple(scenario.gravity), drag=self._drag(scenario),
                        twist="quasistatic", colliders=colliders,
-                       stability_factor=self.stability_factor,
+                       stability_factor=self._stability_factor(scenario),
                        max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
                        # a straight rope pressed end-on into a floor (pile) gives the projection no
                        # sideways way out but its small bow: Gauss-Seidel needs a few hundred passes

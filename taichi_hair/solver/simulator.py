@@ -12,7 +12,7 @@ from ..rods import arrays
 from ..rods.groom import Groom
 from ..progress import ProgressBar
 from ..runtime import ensure_init
-from .stability import (DEFAULT_STABILITY_FACTOR, SimulationDiverged, likely_cause, scene_bound,
+from .stability import (default_stability_factor, SimulationDiverged, likely_cause, scene_bound,
                         stable_time_step, substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
@@ -78,6 +78,9 @@ class Simulator:
         itself) kept apart by the sum of their contact radii, resolved after the projection by
         contact passes alternating with it (solver/strand_contact.py; explicit integrator).
     max_speed [m/s]: a node faster than this counts as a blow-up.
+    stability_factor: the explicit bound's factor c (h_bend = c ds^2 sqrt(rho A / EI), in (0, 2));
+        default 0.5, or 0.4 with strand_contact (contact pushes pumped energy into the stiffest
+        bending mode at 0.5: docs/model.md "Stability bound"). `sim.stability_factor` says which.
     max_substeps: the most automatic substeps per step (default 1000); a scene whose stability
         bound needs more (drag = 1e6, say) is refused with a ValueError naming what sets the bound.
     root: "clamped" (default: node 0 rides on the head and the strand bends and twists against
@@ -128,7 +131,7 @@ class Simulator:
                  twist_tol: float | None = None, twist_iterations: int = DEFAULT_TWIST_ITERATIONS,
                  root_motion=None,
                  colliders=(), touch=(), hair_interaction=None, strict: bool = False,
-                 max_speed: float = 100.0, stability_factor: float = DEFAULT_STABILITY_FACTOR,
+                 max_speed: float = 100.0, stability_factor: float | None = None,
                  root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
                  integrator: str = "explicit", strand_contact=None, projection: str = "fast",
                  extensible: bool = False, strain: str | None = None):
@@ -154,7 +157,9 @@ class Simulator:
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
-        stability_factor = _positive("stability_factor", stability_factor, "", upper=2.0)
+        stability_factor = (default_stability_factor(strand_contact is not None) if stability_factor is None
+                            else _positive("stability_factor", stability_factor, "", upper=2.0))
+        self.stability_factor = stability_factor
         self.control, facts = build_control(_vector3("gravity", gravity),
                                             wind if isinstance(wind, Wind) else _vector3("wind", wind),
                                             drag, tuple(colliders), self.touch,
