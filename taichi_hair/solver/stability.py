@@ -8,8 +8,9 @@ import numpy as np
 DEFAULT_STABILITY_FACTOR = 0.5
 # With strand contact the default factor leaves a margin: at 0.5 the step runs the stiffest
 # bending mode at h omega = 1.97 (docs/model.md "Stability bound"), and contact pushes keep
-# exciting that mode; cosseratbench's pile (a rope coiling onto itself) gained up to 0.36 of its
-# energy in a frame after its clamp stopped at 0.5, and lost energy in every frame at 0.4.
+# exciting that mode; cosseratbench's pile (a rope coiling onto itself) gained up to 0.33 of its
+# energy in a frame after its clamp stopped at 0.5, and lost energy in every frame at 0.4
+# (tests/test_cosseratbench.py).
 CONTACT_STABILITY_FACTOR = 0.4
 
 
