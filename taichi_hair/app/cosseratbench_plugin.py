@@ -316,7 +316,8 @@ class TaichiHairSolver:
 
     # ---- build and run -------------------------------------------------------------------
     def _build(self, scenario: Scenario, n_elements: int, n_frames: int):
-        if self._stability_factor(scenario) >= 2.0 and self.integrator == "explicit":
+        stability_factor = self._stability_factor(scenario)
+        if stability_factor >= 2.0 and self.integrator == "explicit":
             raise NotImplementedError(
                 f"a time step {self.time_step_scale:g}x the default: "
                 f"at or past the explicit step's limit, which taichi_hair refuses to run")
@@ -359,7 +360,7 @@ class TaichiHairSolver:
         dt, steps = self._steps_per_frame(scenario, n_frames)
         options = dict(dt=dt, gravity=tuple(scenario.gravity), drag=self._drag(scenario),
                        twist="quasistatic", colliders=colliders,
-                       stability_factor=self._stability_factor(scenario),
+                       stability_factor=stability_factor,
                        max_substeps=2**31 - 1,  # frames of up to 0.5 s, substepped to the bound by design
                        # a straight rope pressed end-on into a floor (pile) gives the projection no
                        # sideways way out but its small bow: Gauss-Seidel needs a few hundred passes

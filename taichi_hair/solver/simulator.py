@@ -157,9 +157,8 @@ class Simulator:
         self._pins = PinTable(self.model, root)
         self.touch = tuple(touch)
         self.root_motion = root_motion
-        stability_factor = (default_stability_factor(strand_contact is not None) if stability_factor is None
-                            else _positive("stability_factor", stability_factor, "", upper=2.0))
-        self.stability_factor = stability_factor
+        self.stability_factor = (default_stability_factor(strand_contact is not None) if stability_factor is None
+                                 else _positive("stability_factor", stability_factor, "", upper=2.0))
         self.control, facts = build_control(_vector3("gravity", gravity),
                                             wind if isinstance(wind, Wind) else _vector3("wind", wind),
                                             drag, tuple(colliders), self.touch,
@@ -172,7 +171,7 @@ class Simulator:
         self.bound = scene_bound(groom, self.model.materials, drag=drag, air_speed=_max_air_speed(wind),
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
-                                 factor=stability_factor, kmoch=twist == "kmoch")
+                                 factor=self.stability_factor, kmoch=twist == "kmoch")
         self.substeps = self._substeps(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
@@ -196,7 +195,7 @@ class Simulator:
         self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
         if self.plan.contacts:
             self._resolve_initial_contacts()
-            self._tighten_bound_to_start(strict, stability_factor)
+            self._tighten_bound_to_start(strict)
         if self.substeps > 1:
             warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
                           f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
@@ -287,12 +286,12 @@ class Simulator:
         st.x_prev.copy_from(st.x)
         self._reset_counters()
 
-    def _tighten_bound_to_start(self, strict, stability_factor):
+    def _tighten_bound_to_start(self, strict):
         """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
         x = self.positions()
         start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
         self.bound = self.bound.tightened(
-            stable_time_step(start, self.model.materials, self.control.drag, stability_factor,
+            stable_time_step(start, self.model.materials, self.control.drag, self.stability_factor,
                              kmoch=self.twist == "kmoch"),
             "the shape the colliders left the groom in at the start (sharp bends)")
         self.substeps = self._substeps(strict)
