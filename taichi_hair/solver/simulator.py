@@ -524,7 +524,7 @@ class Simulator:
 
     def stats(self, reset: bool = False) -> dict:
         """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
-        projection iterations (max), its final residual (max), how many strand-steps ended above
+        projection iterations (max, and mean over strand-steps), its final residual (max), how many strand-steps ended above
         projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
         an iteration removed under 10 % of a residual already below projection_stall_below,
         1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
@@ -540,6 +540,8 @@ class Simulator:
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
+            "projection_iterations_mean": (float(counters[:, COUNTERS["projection_iterations_sum"]].sum())
+                                           / max(1, int(counters[:, COUNTERS["projections"]].sum()))),
             "projection_residual_max": float(residuals[:, 0].max()),
             "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
             "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),

@@ -39,6 +39,25 @@ class SimulationDiverged(RuntimeError):
         self.strand = strand
 
 
+def rest_turns(points: np.ndarray) -> np.ndarray:
+    """Turning angles [rad] at the interior nodes of one polyline [N, 3]."""
+    e = np.diff(points, axis=0)
+    lengths = np.linalg.norm(e, axis=1)
+    cos_turn = np.clip(np.sum(e[1:] * e[:-1], axis=1) / (lengths[1:] * lengths[:-1]), -1.0, 1.0)
+    return np.arccos(cos_turn)
+
+
+def curvature_stiffening(turns: np.ndarray) -> float:
+    """EI_eff / EI: how much stiffer than straight the stiffest bending mode of a strand with
+    these interior turning angles [rad] may be, sec^4(phi_max / 2) (kb = 2 tan(phi / 2) outgrows
+    phi). Checked against the measured stiffest mode of arcs, kinks, S-bends, random 3D shapes
+    and curls (tests/test_stability_bound.py): it holds for both strain measures, for DER only up
+    to 90 degree turns (docs/model.md "Stability bound")."""
+    if len(turns) == 0:
+        return 1.0
+    return float(1.0 / np.cos(0.5 * np.max(turns)) ** 4)
+
+
 def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STABILITY_FACTOR,
                      kmoch: bool = False) -> float:
     """Largest explicit step h [s] the scene tolerates.
@@ -57,13 +76,11 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
     bound = math.inf
     for s, m in enumerate(materials):
         p = groom.strand(s)
-        e = np.diff(p, axis=0)
-        lengths = np.linalg.norm(e, axis=1)
-        cos_turn = np.clip(np.sum(e[1:] * e[:-1], axis=1) / (lengths[1:] * lengths[:-1]), -1.0, 1.0)
-        half_turn = 0.5 * np.arccos(cos_turn).max()
-        ei_eff = max(m.bending_stiffness) / math.cos(half_turn) ** 4
+        lengths = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        turns = rest_turns(p)
+        ei_eff = max(m.bending_stiffness) * curvature_stiffening(turns)
         bend = factor * lengths.min() ** 2 * math.sqrt(m.linear_density / ei_eff)
-        if kmoch and m.ellipticity > 1.0 and half_turn > 0.0:
+        if kmoch and m.ellipticity > 1.0 and len(turns) and turns.max() > 0.0:
             bend *= kmoch_bound_factor(m.ellipticity)
         bound = min(bound, bend if drag <= 0 else
                     _damped_bound(bend, factor * 2.0 * m.linear_density / drag))
