@@ -63,10 +63,10 @@ class RodModel:
         return self.groom.max_nodes
 
 
-# RodState.history's slots: the friction totals and the contact normal of the step's projection
-# (every integrator), then the implicit step's history
-(FRICTION_SHIFT, FRICTION_PUSH, CONTACT_NORMAL, CONTACT_QUERY, CONTACT_CLEARANCE, HIST_V, HIST_DX, HIST_ELASTIC,
- HIST_CHANGE) = range(9)
+# RodState.history's slots: the friction totals and the collider queries of the step's
+# projection (every integrator), then the implicit step's history
+(FRICTION_SHIFT, FRICTION_PUSH, CONTACT_QUERY, CONTACT_CLEARANCE, HIST_V, HIST_DX, HIST_ELASTIC,
+ HIST_CHANGE) = range(8)
 
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
@@ -100,12 +100,10 @@ class RodState:
     strand_scalar: object  # [S] float
     counters: object  # [S, len(COUNTERS)] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
-    # history [S, N, 9] vec3 with the implicit step, [S, N, 5] without (one array: Taichi caps
+    # history [S, N, 8] vec3 with the implicit step, [S, N, 4] without (one array: Taichi caps
     # a kernel's argument count): [..., FRICTION_SHIFT] the friction shift given to the node so
     # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m]
-    # (collisions.contact_with_friction), [..., CONTACT_NORMAL] the outward unit normal [world]
-    # of the collider that holds the node in this step's projection (zero: not in contact;
-    # step.solve_inextensibility moves such a node along the surface only), [..., CONTACT_QUERY]
+    # (collisions.contact_with_friction), [..., CONTACT_QUERY]
     # the node's step displacement dx [m] when the colliders were last queried for it and
     # [..., CONTACT_CLEARANCE] (its smallest distance beyond a collider's margin then [m], 1 if
     # this contact pass queries it) (collisions.strand_collide); the implicit step's history: [..., HIST_V] the
@@ -169,7 +167,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        history=arrays.vectors(3, (s_count, n_max, 9 if implicit else 5)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
+        history=arrays.vectors(3, (s_count, n_max, 8 if implicit else 4)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
         blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
         block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )

@@ -224,6 +224,19 @@ class Simulator:
         """The explicit step's stability bound [s] (self.bound: with what sets it)."""
         return self.bound.dt
 
+    def fit_step(self, interval: float) -> int:
+        """Take the fewest equal steps within both dt and the explicit bound that fill `interval`
+        [s] (a video frame, say): sets dt to interval / count, one substep each (the implicit
+        step: within dt alone), and returns the count. Substeps of a fixed dt would waste up to
+        half the bound: 0.992 ms steps over a 0.96 ms bound run as two of 0.496 ms."""
+        interval = _positive("interval", interval, "s")
+        largest = self.dt if self.integrator == "implicit" else min(self.dt, self.stable_dt)
+        count = max(1, math.ceil(interval / largest - 1e-9))
+        self.dt = interval / count
+        self.substeps = self._substeps(False)
+        self._history_h = None
+        return count
+
     # ---- head transform -----------------------------------------------------------------
     def _head_at(self, t: float):
         return check_rigid_transform(*self.root_motion(t))

@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
                            Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
-from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction, surface_metric, surface_move
+from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -352,8 +352,6 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
         if i > 0:
             move -= st.rhs[s, i - 1] * e_before
         move *= 2.0 * md.inv_mass[s, i]
-        if ti.static(fl.contacts):
-            move = surface_move(s, i, move, st)
         st.x[s, i] += move
         st.dx[s, i] += move
         e_before = e
@@ -393,11 +391,7 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
         if w > 0.0 or slide > 0.0:
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
-            weight = g.dot(g) * w  # g^T (W_j + W_j+1) g
-            if ti.static(fl.contacts):
-                weight = (surface_metric(s, j, g, g, True, md, st)
-                          + surface_metric(s, j + 1, g, g, True, md, st))
-            st.diag[s, j] = 4.0 * (weight + slide)
+            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
             if ti.static(fl.stretch):
                 length = ti.sqrt(e.dot(e))
                 rest = md.rest_length[s, j]
@@ -420,10 +414,7 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
                 st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
             g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
-            coupling = md.inv_mass[s, j + 1] * g.dot(g_next)
-            if ti.static(fl.contacts):
-                coupling = surface_metric(s, j + 1, g, g_next, False, md, st)
-            st.upper[s, j] = -4.0 * coupling
+            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(g_next)
     return res, turned
 
 
