@@ -128,14 +128,13 @@ def _damped_bound(bend: float, damp: float) -> float:
 
 def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> float:
     """Air moving at max_air_speed [m/s] can drag nodes along at about that speed; the fast
-    projection of a chain converges while a step moves nodes under a segment length, so
-    h < 2 factor ds / max_air_speed (ds the shortest rest edge; a segment per step at the
-    default factor 0.5). math.inf without wind."""
+    projection of a chain converges only while a step moves nodes well under a segment length,
+    so h < factor * ds / max_air_speed (ds the shortest rest edge). math.inf without wind."""
     if max_air_speed <= 0:
         return math.inf
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
-    return 2.0 * factor * shortest / max_air_speed
+    return factor * shortest / max_air_speed
 
 
 @dataclass(frozen=True)
