@@ -169,3 +169,30 @@ def test_bad_command_line_in_a_real_process(argv, names, tmp_path):
     assert len(lines) == 1 and names in lines[0], done.stderr
     assert not list(tmp_path.iterdir())
     assert time.perf_counter() - start < 30
+
+
+MODULE_MAINS = [
+    ("taichi_hair.app.cluster", ["x.py"], [("--frames", 1, 100_000), ("--workers", 1, 256), ("--rounds", 1, 1000),
+                                          ("--width", 1, 16384), ("--height", 1, 16384), ("--dense", 0, 10_000_000)]),
+    ("taichi_hair.hair.interpolate", [], [("--n-dense", 1, 10_000_000), ("--n-nodes", 3, 10_000),
+                                          ("--n-guides", 1, 1_000_000), ("--repeats", 1, 1000)]),
+    ("taichi_hair.app.reports", ["stability"], [("--duration", 0.0, 100.0)]),
+]
+
+
+@pytest.mark.parametrize("module, words, option, low, high", [
+    (m, w, o, lo, hi) for m, w, opts in MODULE_MAINS for o, lo, hi in opts])
+def test_module_entry_points_check_their_options(module, words, option, low, high, capsys):
+    """`python -m taichi_hair.app.cluster` (render timing), `...hair.interpolate` (its benchmark)
+    and `...app.reports`: the same parse-time ranges and one-line errors."""
+    import importlib
+    entry = importlib.import_module(module)
+    run = getattr(entry, "_main", None) or entry.main
+    kind = float if isinstance(low, float) else int
+    for text in VALUES:
+        if _valid(kind, low, high, kind is float, text.strip() if kind is float else text):
+            continue
+        with pytest.raises(SystemExit) as exc:
+            run([*words, f"{option}={text}"])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert exc.value.code == 2 and len(lines) == 1 and option in lines[0], (text, lines)

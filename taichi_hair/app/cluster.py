@@ -276,14 +276,14 @@ def _main(argv=None) -> int:
     import argparse
     import json
     import sys
-    parser = argparse.ArgumentParser(prog="python -m taichi_hair.app.cluster", description=bench_rendering.__doc__)
+    from ..validation import cli_int, one_line_parser_class
+    from .runner import add_image_arguments
+    parser = one_line_parser_class()(prog="python -m taichi_hair.app.cluster", description=bench_rendering.__doc__)
     parser.add_argument("scene")
-    parser.add_argument("--frames", type=int, default=48)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--width", type=int)
-    parser.add_argument("--height", type=int)
-    parser.add_argument("--dense", type=int)
+    parser.add_argument("--frames", type=cli_int("--frames", 1, 100_000), default=48)
+    parser.add_argument("--workers", type=cli_int("--workers", 1, 256), default=2)
+    parser.add_argument("--rounds", type=cli_int("--rounds", 1, 1000), default=3)
+    add_image_arguments(parser)
     args = parser.parse_args(argv)
     overrides = {k: v for k, v in (("width", args.width), ("height", args.height), ("dense_strands", args.dense))
                  if v is not None}
