@@ -97,3 +97,42 @@ def energy_rise(sim, chunks, steps, in_play):
         rise = max(rise, sim.total_energy() - start)
         played = max(played, in_play(sim))
     return rise, played
+
+
+def stiffest_mode_ratios(sim, x0, h=1e-7):
+    """omega_max^2 / ((4 / ds^2)^2 EI_max / rho A) of each strand of `sim` at positions x0
+    [S, N, 3] m: its stiffest mode on the inextensible chain's tangent space (node 0 held), from
+    central differences of the elastic forces (material angles held as they are, which is
+    stiffer than letting the twist relax) and the lumped masses. ds is the strand's shortest
+    edge, EI_max its stiffest bending, rho A its mass per length (one material for all)."""
+    x0 = np.asarray(x0, dtype=float)
+    s_count, n = x0.shape[:2]
+    stiffness = np.zeros((s_count, 3 * n, 3 * n))
+    for i in range(n):
+        for c in range(3):
+            forces = []
+            for sign in (1.0, -1.0):
+                x = x0.copy()
+                x[:, i, c] += sign * h
+                sim.set_positions(x)
+                forces.append(sim.elastic_forces())
+            stiffness[:, :, 3 * i + c] = -(forces[0] - forces[1]).reshape(s_count, -1) / (2 * h)
+    sim.set_positions(x0)
+    mass = sim.model.mass.to_numpy()
+    material = sim.model.materials[0]
+    ratios = []
+    for s in range(s_count):
+        k = 0.5 * (stiffness[s] + stiffness[s].T)[3:, 3:]
+        p = x0[s]
+        edges = np.diff(p, axis=0)
+        jac = np.zeros((n - 1, 3 * n))
+        for j, e in enumerate(edges):
+            jac[j, 3 * j:3 * j + 3] = -e
+            jac[j, 3 * j + 3:3 * j + 6] = e
+        _, sv, vt = np.linalg.svd(jac[:, 3:])
+        q = vt[int((sv > 1e-12 * sv.max()).sum()):].T
+        chol_inv = np.linalg.inv(np.linalg.cholesky(q.T @ np.diag(np.repeat(mass[s, 1:n], 3)) @ q))
+        omega2 = np.linalg.eigvalsh(chol_inv @ (q.T @ k @ q) @ chol_inv.T).max()
+        ds = np.linalg.norm(edges, axis=1).min()
+        ratios.append(omega2 / ((4.0 / ds**2) ** 2 * max(material.bending_stiffness) / material.linear_density))
+    return np.array(ratios)

@@ -63,15 +63,16 @@ class RodModel:
         return self.groom.max_nodes
 
 
-# RodState.history's slots: the friction totals of the step's projection (every integrator),
-# then the implicit step's history
-FRICTION_SHIFT, FRICTION_PUSH, HIST_V, HIST_DX, HIST_ELASTIC, HIST_CHANGE = range(6)
+# RodState.history's slots: the friction totals and the contact normal of the step's projection
+# (every integrator), then the implicit step's history
+(FRICTION_SHIFT, FRICTION_PUSH, CONTACT_NORMAL, CONTACT_QUERY, CONTACT_CLEARANCE, HIST_V, HIST_DX, HIST_ELASTIC,
+ HIST_CHANGE) = range(9)
 
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
 COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
             "twist_iterations": 3, "bad_step": 4, "twist_cap_hits": 5, "twist_stalls": 6,
-            "twist_branch_switches": 7}
+            "twist_branch_switches": 7, "projection_iterations_sum": 8, "projections": 9}
 
 
 @dataclass
@@ -97,12 +98,17 @@ class RodState:
     dx: object  # [S, N] vec3: the step's displacement of each node (strand_velocities)
     scratch_edge: tuple  # three [S, N-1] float arrays
     strand_scalar: object  # [S] float
-    counters: object  # [S, 8] int, see COUNTERS
+    counters: object  # [S, len(COUNTERS)] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
-    # history [S, N, 6] vec3 with the implicit step, [S, N, 2] without (one array: Taichi caps
+    # history [S, N, 9] vec3 with the implicit step, [S, N, 5] without (one array: Taichi caps
     # a kernel's argument count): [..., FRICTION_SHIFT] the friction shift given to the node so
     # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m]
-    # (collisions.contact_with_friction); the implicit step's history: [..., HIST_V] the
+    # (collisions.contact_with_friction), [..., CONTACT_NORMAL] the outward unit normal [world]
+    # of the collider that holds the node in this step's projection (zero: not in contact;
+    # step.solve_inextensibility moves such a node along the surface only), [..., CONTACT_QUERY]
+    # the node's step displacement dx [m] when the colliders were last queried for it and
+    # [..., CONTACT_CLEARANCE] (its smallest distance beyond a collider's margin then [m], 1 if
+    # this contact pass queries it) (collisions.strand_collide); the implicit step's history: [..., HIST_V] the
     # velocities one step back [m/s], [..., HIST_DX] the last step's displacements [m],
     # [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none yet), [..., HIST_CHANGE]
     # this step's elastic forces minus those [N]
@@ -163,7 +169,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        history=arrays.vectors(3, (s_count, n_max, 6 if implicit else 2)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
+        history=arrays.vectors(3, (s_count, n_max, 9 if implicit else 5)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
         blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
         block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )

@@ -1,10 +1,12 @@
 """Contact stage: push nodes out of colliders and hands, with friction. Runs inside the fast
-projection (see step.strand_project), alternating with the inextensibility solve."""
+projection (see step.strand_project), alternating with the inextensibility solve; a pushed node
+keeps its contact normal for the rest of the step's projection, and the inextensibility solve
+moves it along the surface only (docs/model.md, "Collisions")."""
 
 import taichi as ti
 
 from ..rods.arrays import mat_block, point, step_displacement, vec3, vec_block
-from ..rods.state import FRICTION_PUSH, FRICTION_SHIFT
+from ..rods.state import CONTACT_CLEARANCE, CONTACT_NORMAL, CONTACT_QUERY, FRICTION_PUSH, FRICTION_SHIFT
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -41,6 +43,11 @@ def from_head(head: ti.template(), k, p):
     return head_rotate(head, k, p) + head[k, 3]
 
 
+# static friction holds a node only while its slip is below 1 / STICK_MARGIN of the cone: a node
+# whose hold surface_move has just released sits on the cone's edge and must slide from there
+STICK_MARGIN = 1.001
+
+
 @ti.func
 def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin,
@@ -48,8 +55,10 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     to the node so far this step, pushed [m] its pushes so far. The node's slip along the
     surface since p_prev, less that shift, is cancelled by a new shift of at most friction x
     (pushed + this push): static friction while the slip fits in the cone, else it is
-    shortened by the cone's length. Returns (moved, new shift, new pushed)."""
-    push = margin - d
+    shortened by the cone's length. A node held on the surface (d >= margin, within
+    CONTACT_SLACK) takes friction without a push. Returns (moved, new shift, new pushed, 1 if
+    static friction holds the node else 0)."""
+    push = ti.max(margin - d, 0.0)
     total = pushed + push
     # only the shift's part along this surface is taken back: its normal part, left by an
     # earlier iteration's normal, keeps p out of the surface like a push
@@ -60,15 +69,135 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     new_shift = vec3(0.0)
     if length > 1e-12:
         new_shift = -ti.min(1.0, friction * total / length) * tangential
-    return moved + new_shift, new_shift, total
+    stuck = 0
+    if friction > 0.0 and friction * total >= STICK_MARGIN * length:
+        stuck = 1
+    return moved + new_shift, new_shift, total, stuck
+
+
+# a node held on a surface (a contact normal this step) takes friction while it lies within
+# margin x (1 + CONTACT_SLACK) of it: the solve slides it along the tangent plane, which leaves
+# it at the margin on a flat surface (no push), inside it on a convex one
+CONTACT_SLACK = 0.1
+
+
+# Distances change at most DISTANCE_SLOPE times as fast as a node moves (1 for exact distances;
+# the distance grid's trilinear values and the ellipsoid's estimate may run a little faster): a
+# node whose clearance at its last query exceeds DISTANCE_SLOPE x its move since then cannot have
+# reached a margin, and a contact pass skips it
+DISTANCE_SLOPE = 2.0
+UNQUERIED = -1.0  # a clearance that makes the next pass query the node
 
 
 @ti.func
 def strand_reset_friction(s, st: ti.template()):
-    """A new step's friction totals for strand s: no shift, no push yet."""
+    """A new step's contact state for strand s: no friction shift, no push yet, no contact
+    normal, every node to be queried."""
     for i in range(st.history.shape[1]):
         st.history[s, i, FRICTION_SHIFT] = vec3(0.0)
         st.history[s, i, FRICTION_PUSH] = vec3(0.0)
+        st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+        st.history[s, i, CONTACT_CLEARANCE] = vec3(UNQUERIED, 0.0, 0.0)
+
+
+@ti.func
+def plan_queries(s, n, st: ti.template()):
+    """Which nodes of strand s this contact pass queries (CONTACT_CLEARANCE.y = 1): those that may
+    have reached a collider's margin since their last query (DISTANCE_SLOPE). Their clearance
+    starts afresh and each query lowers it (note_clearance)."""
+    for i in range(n):
+        clearance = st.history[s, i, CONTACT_CLEARANCE].x
+        moved = (st.dx[s, i] - st.history[s, i, CONTACT_QUERY]).norm()
+        if clearance > DISTANCE_SLOPE * moved:
+            st.history[s, i, CONTACT_CLEARANCE] = vec3(clearance, 0.0, 0.0)
+        else:
+            st.history[s, i, CONTACT_CLEARANCE] = vec3(ti.math.inf, 1.0, 0.0)
+            st.history[s, i, CONTACT_QUERY] = st.dx[s, i]
+
+
+@ti.func
+def queried(s, i, springs: ti.template(), st: ti.template()):
+    """Whether this contact pass queries node i (always in the implicit correction's springs mode)."""
+    result = True
+    if ti.static(not springs):
+        result = st.history[s, i, CONTACT_CLEARANCE].y > 0.5
+    return result
+
+
+@ti.func
+def note_clearance(s, i, d, margin, springs: ti.template(), st: ti.template()):
+    """Node i was found d [m] from a collider with this margin [m]: its clearance is the least."""
+    if ti.static(not springs):
+        c = st.history[s, i, CONTACT_CLEARANCE]
+        st.history[s, i, CONTACT_CLEARANCE] = vec3(ti.min(c.x, d - margin), c.y, 0.0)
+
+
+@ti.func
+def touching(s, i, d, margin, st: ti.template()):
+    """Whether node i of strand s at signed distance d [m] is in contact: inside the margin, or
+    held on this surface since an earlier push of the step (within CONTACT_SLACK)."""
+    held = st.history[s, i, CONTACT_NORMAL].dot(st.history[s, i, CONTACT_NORMAL]) > 0.0
+    return d < margin or (held and d < margin * (1.0 + CONTACT_SLACK))
+
+
+# a held node's share of an edge's diagonal never falls below this fraction of its free share:
+# an edge along the normal of a held node whose other end cannot move has no first-order way to
+# change its length, and the projection's tridiagonal solve must stay well conditioned
+HELD_SHARE_FLOOR = 1e-2
+
+
+@ti.func
+def surface_metric(s, i, a, b, diagonal: ti.template(), md: ti.template(), st: ti.template()):
+    """a^T W_i b: node i's inverse mass [1/kg] in the inextensibility solve between directions a
+    and b. A node held on a collider (CONTACT_NORMAL n) slides along the surface only,
+    W_i = w_i (I - n n^T) (diagonal, a = b: at least HELD_SHARE_FLOOR of w_i |a|^2); one that
+    static friction holds is HELD_SHARE_FLOOR of that (surface_move); a free node has w_i I."""
+    n = st.history[s, i, CONTACT_NORMAL]
+    value = a.dot(b) - a.dot(n) * b.dot(n)
+    if ti.static(diagonal):
+        value = ti.max(value, HELD_SHARE_FLOOR * a.dot(a))
+    if st.history[s, i, FRICTION_PUSH].z > 0.5:
+        value *= HELD_SHARE_FLOOR
+    return md.inv_mass[s, i] * value
+
+
+@ti.func
+def surface_move(s, i, move, st: ti.template()):
+    """The move [m] the inextensibility solve makes of node i, given the move `move` it asks of
+    the node as if free. A node held on a collider: a move out of the surface releases it and
+    is made in full (HELD_SHARE_FLOOR of it if static friction held it); the part into the surface is dropped and added to its pushes (friction's
+    budget, as if it had been made and pushed back). Sliding, it moves along the surface; held
+    by static friction it moves HELD_SHARE_FLOOR of the tangential move (it is that heavy in
+    the solve), and its friction shift takes the rest (the friction force that holds it) until
+    the shift leaves the cone (friction x pushes): then the shift is cut back to the cone and
+    the node slides from the next iteration on."""
+    n = st.history[s, i, CONTACT_NORMAL]
+    result = move
+    if n.dot(n) > 0.0:
+        into = move.dot(n)
+        totals = st.history[s, i, FRICTION_PUSH]  # (pushes [m], friction, stuck)
+        if into > 0.0:
+            st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+            st.history[s, i, FRICTION_PUSH] = vec3(totals.x, totals.y, 0.0)
+            if totals.z > 0.5:
+                result *= HELD_SHARE_FLOOR  # the solve weighed it as held
+        else:
+            totals.x -= into
+            result = move - into * n
+            if totals.z > 0.5:
+                # held: it moves HELD_SHARE_FLOOR of the way, as the solve weighed it, and its
+                # friction shift takes the rest
+                shift = st.history[s, i, FRICTION_SHIFT] - (1.0 - HELD_SHARE_FLOOR) * result
+                result *= HELD_SHARE_FLOOR
+                cone = totals.y * totals.x
+                if shift.norm() > cone:
+                    # the hold is lost: the shift is cut back to the cone and the node slides
+                    # from the next iteration on
+                    shift *= cone / shift.norm()
+                    totals.z = 0.0
+                st.history[s, i, FRICTION_SHIFT] = shift
+            st.history[s, i, FRICTION_PUSH] = totals
+    return result
 
 
 @ti.func
@@ -76,19 +205,22 @@ def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_
                           st: ti.template()):
     """resolve_contact for node i of strand s in a collider's frame (head coordinates at pose
     now when on_head), its step totals (st.history's FRICTION_SHIFT in world axes and
-    FRICTION_PUSH) read and written back, so a node touching a head and a world collider in one
-    step keeps one budget. Returns the moved point in the world."""
+    FRICTION_PUSH: (pushes [m], the collider's friction, 1 if static friction holds the node)) read
+    and written back, so a node touching a head and a world collider in one step keeps one
+    budget. Returns (the moved point, the outward normal), both in the world."""
     shift = st.history[s, i, FRICTION_SHIFT]
     if on_head:
         shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
-    moved, shift, total = resolve_contact(local, local_prev, d, n, margin, friction, shift,
-                                          st.history[s, i, FRICTION_PUSH].x)
+    moved, shift, total, stuck = resolve_contact(local, local_prev, d, n, margin, friction, shift,
+                                                 st.history[s, i, FRICTION_PUSH].x)
+    normal = n
     if on_head:
         shift = head_rotate(head, now, shift)
         moved = from_head(head, now, moved)
+        normal = head_rotate(head, now, n)
     st.history[s, i, FRICTION_SHIFT] = shift
-    st.history[s, i, FRICTION_PUSH] = vec3(total, 0.0, 0.0)
-    return moved
+    st.history[s, i, FRICTION_PUSH] = vec3(total, friction, stuck)
+    return moved, normal
 
 
 @ti.func
@@ -134,15 +266,17 @@ def contact_spring(s, i, target, st: ti.template()):
 
 
 @ti.func
-def place_contact(s, i, target, springs: ti.template(), md: ti.template(), st: ti.template()):
-    """Node i of strand s to its contact target [m] (world): placed (dx = x - x_prev), or with
-    springs pulled there by the implicit correction's solve (contact_spring) if the push is
-    deeper than SPRING_PUSH of the node's edge (shallower ones are left to the fast projection
-    after the solve)."""
+def place_contact(s, i, target, normal, springs: ti.template(), md: ti.template(), st: ti.template()):
+    """Node i of strand s to its contact target [m] (world; normal: the collider's outward unit
+    normal there, world axes): placed (dx = x - x_prev) and held on the surface for
+    the rest of the projection (CONTACT_NORMAL), or with springs pulled there by the implicit
+    correction's solve (contact_spring) if the push is deeper than SPRING_PUSH of the node's
+    edge (shallower ones are left to the fast projection after the solve)."""
     if ti.static(springs):
         if (target - point(st.x, s, i)).norm() > SPRING_PUSH * md.rest_length[s, ti.max(i - 1, 0)]:
             contact_spring(s, i, target, st)
     else:
+        st.history[s, i, CONTACT_NORMAL] = normal
         st.x[s, i] = target
         st.dx[s, i] = step_displacement(st.x, st.x_prev, s, i)  # placed, not moved by: see strand_velocities
 
@@ -168,30 +302,40 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     # the strand keeps that collider (see root_keeps_collider). One distance query per node and
     # collider, the root's included: a separate root query doubled the contact code that every
     # kernel using it compiles (twice in the implicit step's).
+    if ti.static(not springs):
+        plan_queries(s, md.node_count[s], st)
     for c in range(n_analytic):
         on_head = co.params[c][3] > 0.5
         margin = co.params[c][1]
         for i in range(md.node_count[s]):
+            if not queried(s, i, springs, st):
+                continue
             local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
             d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0], local)
+            note_clearance(s, i, d, margin, springs, st)  # a root held inside stays queried
             if i == 0 and d < -margin:
                 break
-            if md.inv_mass[s, i] > 0.0 and d < margin:
-                place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, co.params[c][2], st), springs, md, st)
+            if md.inv_mass[s, i] > 0.0 and touching(s, i, d, margin, st):
+                moved, normal = contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
+                                                      margin, co.params[c][2], st)
+                place_contact(s, i, moved, normal, springs, md, st)
                 pushes += 1
     if ti.static(fl.mesh):
         # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
         on_head = co.sdf_meta[2][0] > 0.5
         margin = co.sdf_meta[1][1]
         for i in range(md.node_count[s]):
+            if not queried(s, i, springs, st):
+                continue
             local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
             d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
+            note_clearance(s, i, d, margin, springs, st)  # a root held inside stays queried
             if i == 0 and d < -margin:
                 break
-            if md.inv_mass[s, i] > 0.0 and d < margin:
-                place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, co.sdf_meta[1][2], st), springs, md, st)
+            if md.inv_mass[s, i] > 0.0 and touching(s, i, d, margin, st):
+                moved, normal = contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
+                                                      margin, co.sdf_meta[1][2], st)
+                place_contact(s, i, moved, normal, springs, md, st)
                 pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -199,14 +343,15 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 # in the hand's frame: its own motion over the step does not count as slip
                 centre = dr.tool_points[tool_now, k]
                 for i in range(md.node_count[s]):
-                    if md.inv_mass[s, i] > 0.0:
+                    if md.inv_mass[s, i] > 0.0 and queried(s, i, springs, st):
                         local = point(x, s, i) - centre
                         local_prev = point(x_prev, s, i) - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
-                        if d < dr.tools[k][2]:
+                        note_clearance(s, i, d, dr.tools[k][2], springs, st)
+                        if touching(s, i, d, dr.tools[k][2], st):
                             # in the hand's frame, which does not turn: shift in world axes
-                            moved = contact_with_friction(s, i, False, head, now, local, local_prev, d, n,
-                                                          dr.tools[k][2], dr.tools[k][3], st)
-                            place_contact(s, i, centre + moved, springs, md, st)
+                            moved, normal = contact_with_friction(s, i, False, head, now, local, local_prev, d,
+                                                                  n, dr.tools[k][2], dr.tools[k][3], st)
+                            place_contact(s, i, centre + moved, normal, springs, md, st)
                             pushes += 1
     return pushes

@@ -12,8 +12,9 @@ from ..rods import arrays
 from ..rods.groom import Groom
 from ..progress import ProgressBar
 from ..runtime import ensure_init
-from .stability import (default_stability_factor, SimulationDiverged, likely_cause, scene_bound,
-                        stable_time_step, substeps_for)
+from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_factor, rest_turns,
+                        SimulationDiverged, likely_cause, scene_bound, stable_time_step, stiffest_mode_ratio,
+                        substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
 from ..world.scene import _host_distance, check_common_inputs
@@ -171,7 +172,8 @@ class Simulator:
         self.bound = scene_bound(groom, self.model.materials, drag=drag, air_speed=_max_air_speed(wind),
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
-                                 factor=self.stability_factor, kmoch=twist == "kmoch")
+                                 factor=self.stability_factor, kmoch=twist == "kmoch",
+                                 measured=self._measured_stiffening())
         self.substeps = self._substeps(strict)
         self.plan = StepPlan(
             external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
@@ -302,9 +304,45 @@ class Simulator:
         start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
         self.bound = self.bound.tightened(
             stable_time_step(start, self.model.materials, self.control.drag, self.stability_factor,
-                             kmoch=self.twist == "kmoch"),
+                             kmoch=self.twist == "kmoch", measured=self._measured_stiffening()),
             "the shape the colliders left the groom in at the start (sharp bends)")
         self.substeps = self._substeps(strict)
+
+    def _measured_stiffening(self) -> dict:
+        """{strand: EI_eff / EI} of the strands whose current shape the curvature rule charges
+        more than MEASURE_ABOVE: their stiffest bending mode (stiffest_mode_ratio) from central
+        differences of the elastic forces. Under the rotation measure only (the rule holds for
+        DER's rest shapes but not once they bend away), explicit step, twist not Kmoch's.
+        Positions and frames are as they were afterwards."""
+        if self.strain != "rotation" or self.twist == "kmoch" or self.integrator != "explicit":
+            return {}
+        counts = self.groom.node_counts
+        x0 = self.state.x.to_numpy()
+        strands = [s for s in range(len(counts))
+                   if curvature_stiffening(rest_turns(x0[s, : counts[s]])) > MEASURE_ABOVE]
+        if not strands:
+            return {}
+        n_max = max(counts[s] for s in strands)
+        h = 1e-4 * min(np.linalg.norm(np.diff(x0[s, : counts[s]], axis=0), axis=1).min() for s in strands)
+        hessian = np.zeros((len(strands), 3 * n_max, 3 * n_max))
+        for i in range(1, n_max):  # node 0 is held
+            rows = [s for s in strands if i < counts[s]]
+            for c in range(3):
+                forces = []
+                for sign in (1.0, -1.0):
+                    x = x0.copy()
+                    x[rows, i, c] += sign * h
+                    self.rods.set_positions(x)
+                    forces.append(self.rods.elastic_forces()[strands, :n_max].reshape(len(strands), -1))
+                hessian[:, :, 3 * i + c] = -(forces[0] - forces[1]) / (2.0 * h)
+        self.rods.set_positions(x0)
+        mass = self.model.mass.to_numpy()
+        measured = {}
+        for k, s in enumerate(strands):
+            n, m = counts[s], self.model.materials[s]
+            measured[s] = stiffest_mode_ratio(x0[s, :n], mass[s, :n], hessian[k, : 3 * n, : 3 * n],
+                                              max(m.bending_stiffness), m.linear_density)
+        return measured
 
     def _substeps(self, strict) -> int:
         """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
@@ -533,7 +571,7 @@ class Simulator:
 
     def stats(self, reset: bool = False) -> dict:
         """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
-        projection iterations (max), its final residual (max), how many strand-steps ended above
+        projection iterations (max, and mean over strand-steps), its final residual (max), how many strand-steps ended above
         projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
         an iteration removed under 10 % of a residual already below projection_stall_below,
         1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
@@ -549,6 +587,8 @@ class Simulator:
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
+            "projection_iterations_mean": (float(counters[:, COUNTERS["projection_iterations_sum"]].sum())
+                                           / max(1, int(counters[:, COUNTERS["projections"]].sum()))),
             "projection_residual_max": float(residuals[:, 0].max()),
             "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
             "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),

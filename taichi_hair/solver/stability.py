@@ -39,8 +39,55 @@ class SimulationDiverged(RuntimeError):
         self.strand = strand
 
 
+def rest_turns(points: np.ndarray) -> np.ndarray:
+    """Turning angles [rad] at the interior nodes of one polyline [N, 3]."""
+    e = np.diff(points, axis=0)
+    lengths = np.linalg.norm(e, axis=1)
+    cos_turn = np.clip(np.sum(e[1:] * e[:-1], axis=1) / (lengths[1:] * lengths[:-1]), -1.0, 1.0)
+    return np.arccos(cos_turn)
+
+
+def curvature_stiffening(turns: np.ndarray) -> float:
+    """EI_eff / EI: how much stiffer than straight the stiffest bending mode of a strand with
+    these interior turning angles [rad] may be, sec^4(phi_max / 2) (kb = 2 tan(phi / 2) outgrows
+    phi). Checked against the measured stiffest mode of arcs, kinks, S-bends, random 3D shapes
+    and curls (tests/test_stability_bound.py): it holds for both strain measures, for DER only up
+    to 90 degree turns (docs/model.md "Stability bound")."""
+    if len(turns) == 0:
+        return 1.0
+    return float(1.0 / np.cos(0.5 * np.max(turns)) ** 4)
+
+
+# Under the rotation measure the rule overstates isolated sharp turns (a single 110 degree rest
+# turn measures 0.97 of a straight chain against the rule's 9.2; tests/test_stability_bound.py):
+# a strand whose rule exceeds MEASURE_ABOVE has its stiffest mode measured instead (Simulator).
+MEASURE_ABOVE = 1.2
+
+
+def stiffest_mode_ratio(points: np.ndarray, mass: np.ndarray, hessian: np.ndarray, ei_max: float,
+                        linear_density: float) -> float:
+    """omega_max^2 of one strand's bending (node 0 held) on its inextensible tangent space, over
+    a straight chain's estimate (4 / ds^2)^2 EI_max / rho A with ds its shortest edge: the
+    EI_eff / EI the bending bound needs for this shape. points [n, 3] m, mass [n] kg, hessian
+    [3n, 3n] N/m of the elastic energy at these points (material angles held, which is stiffer
+    than letting the twist relax)."""
+    n = len(points)
+    edges = np.diff(points, axis=0)
+    jac = np.zeros((n - 1, 3 * n))
+    for j, e in enumerate(edges):
+        jac[j, 3 * j:3 * j + 3] = -e
+        jac[j, 3 * j + 3:3 * j + 6] = e
+    _, singular, vt = np.linalg.svd(jac[:, 3:])
+    tangent = vt[int((singular > 1e-12 * singular.max()).sum()):].T
+    k = 0.5 * (hessian + hessian.T)[3:, 3:]
+    chol_inv = np.linalg.inv(np.linalg.cholesky(tangent.T @ np.diag(np.repeat(mass[1:], 3)) @ tangent))
+    omega2 = float(np.linalg.eigvalsh(chol_inv @ (tangent.T @ k @ tangent) @ chol_inv.T).max())
+    ds = float(np.linalg.norm(edges, axis=1).min())
+    return omega2 / ((4.0 / ds**2) ** 2 * ei_max / linear_density)
+
+
 def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STABILITY_FACTOR,
-                     kmoch: bool = False) -> float:
+                     kmoch: bool = False, measured: dict | None = None) -> float:
     """Largest explicit step h [s] the scene tolerates.
 
     Bending: the stiffest discrete bending mode of a strand has omega ~ 4 / ds^2 sqrt(EI / rho A)
@@ -53,17 +100,20 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
     (measured: a hair at 88 % of its bending bound with drag 5e-3 locks into a 2.4 m/s
     period-2 oscillation). factor applies to both bounds before they are combined.
     kmoch: the twist follows Kmoch's rule; curved elliptic strands get kmoch_bound_factor more.
+    measured: {strand: EI_eff / EI} measured for this shape (stiffest_mode_ratio), taken in place
+    of the rule for those strands (at least 1: a straight chain's margin).
     """
     bound = math.inf
     for s, m in enumerate(materials):
         p = groom.strand(s)
-        e = np.diff(p, axis=0)
-        lengths = np.linalg.norm(e, axis=1)
-        cos_turn = np.clip(np.sum(e[1:] * e[:-1], axis=1) / (lengths[1:] * lengths[:-1]), -1.0, 1.0)
-        half_turn = 0.5 * np.arccos(cos_turn).max()
-        ei_eff = max(m.bending_stiffness) / math.cos(half_turn) ** 4
+        lengths = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        turns = rest_turns(p)
+        stiffening = curvature_stiffening(turns)
+        if measured and s in measured:
+            stiffening = max(1.0, measured[s])
+        ei_eff = max(m.bending_stiffness) * stiffening
         bend = factor * lengths.min() ** 2 * math.sqrt(m.linear_density / ei_eff)
-        if kmoch and m.ellipticity > 1.0 and half_turn > 0.0:
+        if kmoch and m.ellipticity > 1.0 and len(turns) and turns.max() > 0.0:
             bend *= kmoch_bound_factor(m.ellipticity)
         bound = min(bound, bend if drag <= 0 else
                     _damped_bound(bend, factor * 2.0 * m.linear_density / drag))
@@ -78,13 +128,14 @@ def _damped_bound(bend: float, damp: float) -> float:
 
 def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> float:
     """Air moving at max_air_speed [m/s] can drag nodes along at about that speed; the fast
-    projection of a chain converges only while a step moves nodes well under a segment length,
-    so h < factor * ds / max_air_speed (ds the shortest rest edge). math.inf without wind."""
+    projection of a chain converges while a step moves nodes under a segment length, so
+    h < 2 factor ds / max_air_speed (ds the shortest rest edge; a segment per step at the
+    default factor 0.5). math.inf without wind."""
     if max_air_speed <= 0:
         return math.inf
     shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
                    for s in range(groom.n_strands))
-    return factor * shortest / max_air_speed
+    return 2.0 * factor * shortest / max_air_speed
 
 
 @dataclass(frozen=True)
@@ -105,17 +156,17 @@ class StabilityBound:
 
 
 def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), factor: float,
-                kmoch: bool) -> StabilityBound:
+                kmoch: bool, measured: dict | None = None) -> StabilityBound:
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
     the wind (air_speed [m/s], the fastest air), each grab spring (grabs: (name, stiffness
     [N/m], lightest free node's mass [kg])); its cause names the parameter that sets it. Drag is
     named when it at least halves the bending bound. Only the bound itself is computed here;
     the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
     when a refusal words it."""
-    with_drag = stable_time_step(groom, materials, drag, factor, kmoch=kmoch)
+    with_drag = stable_time_step(groom, materials, drag, factor, kmoch=kmoch, measured=measured)
 
     def bending_cause() -> str:
-        bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch)
+        bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch, measured=measured)
         if with_drag < 0.5 * bend:
             return f"drag = {drag:g} N s/m per metre (the bending bound alone is {bend:.3g} s)"
         plain = stable_time_step(groom, materials, drag, factor) if kmoch else with_drag

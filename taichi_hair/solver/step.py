@@ -20,7 +20,7 @@ import taichi as ti
 
 from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars1, Scalars2, Scalars3, Vec3s1, Vec3s2,
                            Vec3s3, Vec4s1, Vec4s2, edge, point, step_displacement, vec3)
-from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction
+from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction, surface_metric, surface_move
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import thomas_solve
@@ -64,6 +64,7 @@ PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWIT
     COUNTERS[k] for k in ("projection_iterations", "projection_cap_hits", "projection_stalls",
                           "twist_iterations", "bad_step", "twist_cap_hits", "twist_stalls",
                           "twist_branch_switches"))
+PROJ_IT_SUM, PROJ_COUNT = COUNTERS["projection_iterations_sum"], COUNTERS["projections"]
 
 
 @dataclass(frozen=True)
@@ -352,6 +353,8 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
         if i > 0:
             move -= st.rhs[s, i - 1] * e_before
         move *= 2.0 * md.inv_mass[s, i]
+        if ti.static(fl.contacts):
+            move = surface_move(s, i, move, st)
         st.x[s, i] += move
         st.dx[s, i] += move
         e_before = e
@@ -391,7 +394,11 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
         if w > 0.0 or slide > 0.0:
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
-            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
+            weight = g.dot(g) * w  # g^T (W_j + W_j+1) g
+            if ti.static(fl.contacts):
+                weight = (surface_metric(s, j, g, g, True, md, st)
+                          + surface_metric(s, j + 1, g, g, True, md, st))
+            st.diag[s, j] = 4.0 * (weight + slide)
             if ti.static(fl.stretch):
                 length = ti.sqrt(e.dot(e))
                 rest = md.rest_length[s, j]
@@ -414,7 +421,10 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
                 st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
             g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
-            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(g_next)
+            coupling = md.inv_mass[s, j + 1] * g.dot(g_next)
+            if ti.static(fl.contacts):
+                coupling = surface_metric(s, j + 1, g, g_next, False, md, st)
+            st.upper[s, j] = -4.0 * coupling
     return res, turned
 
 
@@ -538,9 +548,12 @@ def strand_velocities(s, sc, md: ti.template(), st: ti.template()):
 
 @ti.func
 def record_projection(s, st: ti.template(), it, res, tol, max_iterations):
-    """Running maxima of iterations and final residual; counts of steps that ended above tol
-    at the iteration cap, or stalled at the rounding floor."""
+    """Running maxima of iterations and final residual, the iterations' sum and the number of
+    projections (their mean); counts of steps that ended above tol at the iteration cap, or
+    stalled at the rounding floor."""
     st.counters[s, PROJ_IT] = ti.max(st.counters[s, PROJ_IT], it)
+    st.counters[s, PROJ_IT_SUM] += it
+    st.counters[s, PROJ_COUNT] += 1
     st.residuals[s, 0] = ti.max(st.residuals[s, 0], res)
     if res >= tol:
         if it >= max_iterations:
