@@ -71,7 +71,7 @@ def _moving_scene(integrator):
                     drag=5e-4, hair_interaction=interaction)
 
 
-@pytest.mark.parametrize("integrator", ["explicit", "implicit"])
+@pytest.mark.parametrize("integrator", ["explicit", pytest.param("implicit", marks=pytest.mark.slow)])  # 13 s idle
 def test_step_grouping_and_resume_with_head_motion(integrator, tmp_path):
     scene = _moving_scene(integrator)
     whole = Simulator.from_scene(scene, dt=2e-3)
