@@ -179,3 +179,87 @@ def test_random_api_arguments_end_in_an_object_or_value_error():
             accepted["Simulator"] += 1
     print(f"\naccepted: {accepted}")
     assert all(v > 0 for v in accepted.values())
+
+
+def _usd_stage(path, rng):
+    """A random BasisCurves stage with one field pushed out of range (or none): counts, points,
+    widths, metersPerUnit, upAxis, a parent transform; (label, ok): ok=False when pxr itself
+    refuses to author the value (then there is nothing to read)."""
+    from pxr import Gf, Usd, UsdGeom, Vt
+    counts = [int(c) for c in rng.integers(3, 7, rng.integers(1, 5))]
+    points = np.concatenate([np.cumsum(rng.normal(scale=0.01, size=(c, 3)), axis=0) for c in counts])
+    widths = rng.uniform(5e-5, 2e-4, len(points))
+    mpu, up, scale, translate = 1.0, "Z", (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)
+    kind = str(rng.choice(["none", "counts", "points", "widths", "widths_len", "mpu", "up", "scale",
+                           "translate", "cubic"]))
+    special = [np.nan, np.inf, -np.inf, 1e30, -1e30, 0.0, -1.0, 1e-30, 1e7]
+    if kind == "counts":
+        counts[int(rng.integers(len(counts)))] = int(rng.choice([0, 1, 2, -3, 10**6]))
+    elif kind == "points":
+        points[int(rng.integers(len(points))), int(rng.integers(3))] = rng.choice(special)
+    elif kind == "widths":
+        widths[int(rng.integers(len(widths)))] = rng.choice(special)
+    elif kind == "widths_len":
+        widths = widths[: int(rng.integers(0, len(widths)))]
+    elif kind == "mpu":
+        mpu = float(rng.choice(special))
+    elif kind == "up":
+        up = str(rng.choice(["X", "Y", "", "W", "z"]))
+    elif kind == "scale":
+        scale = tuple(float(rng.choice(special)) if k == 0 else 1.0 for k in range(3))
+    elif kind == "translate":
+        translate = (float(rng.choice(special)), 0.0, 0.0)
+    try:
+        stage = Usd.Stage.CreateNew(str(path))
+        stage.SetMetadata("upAxis", up)
+        stage.SetMetadata("metersPerUnit", mpu)
+        xf = UsdGeom.Xform.Define(stage, "/World")
+        xf.AddTranslateOp().Set(Gf.Vec3d(*translate))
+        xf.AddScaleOp().Set(Gf.Vec3f(*scale))
+        curves = UsdGeom.BasisCurves.Define(stage, "/World/Hair")
+        curves.CreateTypeAttr("cubic" if kind == "cubic" else "linear")
+        if kind == "cubic":
+            curves.CreateBasisAttr(str(rng.choice(["bezier", "bspline", "catmullRom", "hermite"])))
+        curves.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
+        curves.CreateCurveVertexCountsAttr(Vt.IntArray(counts))
+        if len(widths):
+            curves.CreateWidthsAttr(Vt.FloatArray([float(w) for w in widths]))
+            curves.SetWidthsInterpolation("vertex")
+        stage.GetRootLayer().Save()
+    except Exception:  # pxr refuses to author the value
+        return kind, False
+    return kind, True
+
+
+def test_mutated_usd_stages_end_in_curves_or_hair_file_error(tmp_path):
+    """400 random stages, each with one field out of range (counts, points, widths and their
+    length, metersPerUnit, upAxis, a parent's scale and translation, cubic bases) or none: a
+    read gives finite strands within 1e6 m with finite positive widths, or HairFileError naming
+    the file, within CASE_SECONDS."""
+    import pytest
+    pytest.importorskip("pxr", reason="usd-core is not installed: pip install 'taichi_hair[usd]'")
+    rng = np.random.default_rng(46)
+    outcomes = {}
+    for k in range(400):
+        path = tmp_path / f"stage{k}.usda"
+        kind, authored = _usd_stage(path, rng)
+        if not authored:
+            outcomes["not authorable"] = outcomes.get("not authorable", 0) + 1
+            continue
+        start = time.perf_counter()
+        try:
+            curves = th.read_usd_curves(path)
+        except HairFileError as err:
+            assert str(path) in str(err), (kind, err)
+            outcomes[f"{kind}: refused"] = outcomes.get(f"{kind}: refused", 0) + 1
+        else:
+            x = curves.groom.positions
+            assert np.all(np.isfinite(x)) and np.abs(x).max() <= 1e6, kind
+            if curves.widths is not None:
+                w = np.concatenate(curves.widths)
+                assert np.all(np.isfinite(w) & (w > 0)), (kind, w)
+            outcomes[f"{kind}: read"] = outcomes.get(f"{kind}: read", 0) + 1
+        assert time.perf_counter() - start < CASE_SECONDS, kind
+    print(f"\nUSD stages: {dict(sorted(outcomes.items()))}")
+    assert outcomes.get("none: read", 0) > 10
+    assert sum(v for key, v in outcomes.items() if key.endswith("refused")) > 100

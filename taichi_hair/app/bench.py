@@ -17,6 +17,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from ..validation import cli_int, cli_int_list
+
 FRAME = 1.0 / 60.0
 NODES = 32
 SEGMENT = 0.01
@@ -198,7 +200,7 @@ def main(args) -> int:
             raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
                              f"pip install 'taichi_hair[bench]'") from None
         return bench_main(args)
-    strands = [int(s) for s in args.strands.split(",")]
+    strands = args.strands
     integrators = ("explicit", "implicit") if args.integrator == "both" else (args.integrator,)
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
     results = []
@@ -209,7 +211,7 @@ def main(args) -> int:
             continue
         # one precision per process: Taichi cannot change it after init
         cmd = [sys.executable, "-m", "taichi_hair", "bench", "--json", "--arch", args.arch,
-               "--precision", precision, "--strands", args.strands, "--repeats", str(args.repeats),
+               "--precision", precision, "--strands", ",".join(map(str, strands)), "--repeats", str(args.repeats),
                "--stage-steps", str(args.stage_steps), "--twist", args.twist,
                "--head-guides", str(args.head_guides), "--dense", str(args.dense),
                "--integrator", args.integrator]
@@ -226,15 +228,17 @@ def add_parser(sub):
     p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame)")
     p.add_argument("--arch", default="cpu", help="cpu (default) or cuda where a GPU exists")
     p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"])
-    p.add_argument("--strands", default="1,100,1000,10000", help="comma-separated guide counts")
-    p.add_argument("--repeats", type=int, default=5, help="timed frames per case (median)")
-    p.add_argument("--stage-steps", type=int, default=5, help="steps timed stage by stage")
+    p.add_argument("--strands", type=cli_int_list("--strands", 1, 1_000_000), default="1,100,1000,10000",
+                   help="comma-separated guide counts")
+    p.add_argument("--repeats", type=cli_int("--repeats", 1, 1000), default=5, help="timed frames per case (median)")
+    p.add_argument("--stage-steps", type=cli_int("--stage-steps", 1, 10_000), default=5,
+                   help="steps timed stage by stage")
     p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
     p.add_argument("--integrator", default="both", choices=["explicit", "implicit", "both"],
                    help="rows for each integrator (default both)")
-    p.add_argument("--head-guides", type=int, default=1000,
+    p.add_argument("--head-guides", type=cli_int("--head-guides", 0, 100_000), default=1000,
                    help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
-    p.add_argument("--dense", type=int, default=100_000,
+    p.add_argument("--dense", type=cli_int("--dense", 0, 10_000_000), default=100_000,
                    help="dense strands interpolated per frame on the interpolation row; 0 skips it")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
@@ -247,10 +251,10 @@ def add_parser(sub):
     cb.add_argument("--solvers",
                     default="taichi_hair,taichi_hair_shake,taichi_hair_stretch,taichi_hair_implicit,pyelastica,mujoco",
                     help="comma-separated cosseratbench solvers")
-    cb.add_argument("--n-elements", type=int, default=None,
+    cb.add_argument("--n-elements", type=cli_int("--n-elements", 2, 100_000), default=None,
                     help="elements per rod (default: each experiment's)")
     cb.add_argument("--out", default="out/cosseratbench",
                     help="results directory (saved runs are reused while still valid)")
-    cb.add_argument("--jobs", type=int, default=1, help="runs at once (wall times read high above 1)")
+    cb.add_argument("--jobs", type=cli_int("--jobs", 1, 256), default=1, help="runs at once (wall times read high above 1)")
     cb.add_argument("--force", action="store_true", help="rerun saved runs")
     p.set_defaults(func=main)

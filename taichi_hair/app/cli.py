@@ -10,6 +10,7 @@ from . import reports
 from . import runner
 from . import sweep
 from ..solver.stability import SimulationDiverged
+from ..validation import cli_int, cli_real, one_line_parser_class
 
 
 def _demo(args) -> int:
@@ -48,19 +49,23 @@ def _demo(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="taichi-hair", description=__doc__)
+    parser = one_line_parser_class()(prog="taichi-hair", description=__doc__)
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of an error (accepted anywhere on the line)")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="bend a curly strand and print its energy and forces")
     demo.add_argument("--arch", default="cpu")
     demo.add_argument("--precision", default="float64", choices=["float32", "float64"])
-    demo.add_argument("--nodes", type=int, default=16)
-    demo.add_argument("--length", type=float, default=0.15, help="strand length [m]")
-    demo.add_argument("--curl-radius", type=float, default=0.01, help="helix radius [m]")
-    demo.add_argument("--curl-pitch", type=float, default=0.02, help="helix pitch [m per turn]")
-    demo.add_argument("--ellipticity", type=float, default=1.5)
-    demo.add_argument("--bend", type=float, default=30.0, help="bend at the tip [degrees]")
+    demo.add_argument("--nodes", type=cli_int("--nodes", 3, 10_000), default=16)
+    demo.add_argument("--length", type=cli_real("--length", 0.0, 10.0, unit="m"), default=0.15,
+                      help="strand length [m]")
+    demo.add_argument("--curl-radius", type=cli_real("--curl-radius", 0.0, 1.0, unit="m"), default=0.01,
+                      help="helix radius [m]")
+    demo.add_argument("--curl-pitch", type=cli_real("--curl-pitch", 0.0, 1.0, low_open=False, unit="m"),
+                      default=0.02, help="helix pitch [m per turn]")
+    demo.add_argument("--ellipticity", type=cli_real("--ellipticity", 1.0, 10.0, low_open=False), default=1.5)
+    demo.add_argument("--bend", type=cli_real("--bend", -360.0, 360.0, low_open=False, unit="degrees"),
+                      default=30.0, help="bend at the tip [degrees]")
     demo.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
     demo.set_defaults(func=_demo)
     bench.add_parser(sub)

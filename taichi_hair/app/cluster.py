@@ -43,8 +43,9 @@ def require_distributed(option: str = "--workers"):
 
 def add_arguments(parser) -> None:
     """--workers N | --scheduler ADDR on a subcommand's parser."""
+    from ..validation import cli_int
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--workers", type=int, default=None, metavar="N",
+    group.add_argument("--workers", type=cli_int("--workers", 1, 256), default=None, metavar="N",
                        help="spread the work over a local Dask cluster of N worker processes (extra 'cluster')")
     group.add_argument("--scheduler", default=None, metavar="ADDR",
                        help="spread the work over the Dask cluster at ADDR, e.g. tcp://HOST:8786 (extra 'cluster')")
@@ -159,19 +160,20 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
     summary, plus "workers" and "frames_rendered" (PNGs written by this call, each once)."""
     from ..progress import ProgressBar
     from .runner import (_check_usd, _checkpoint, _resume_point, _summary, _usd_writer, _write_usd_frame,
-                         frame_path, load_guides, make_out_dir, prepare_run, remove_guides, save_guides,
+                         frame_path, load_guides, prepare_run, remove_guides, save_guides,
                          simulate_frame, write_video)
+    from .outdir import claim_out_dir
     distributed = require_distributed()
     if usd is not None:
         _check_usd(usd)
+    out, lock = claim_out_dir(out_dir, script, frames=frames, resume=resume, usd=usd)  # held until return
     run = prepare_run(script, overrides=overrides, settings=settings, draw=False)
     shot, sim = run.shot, run.sim
     if usd is not None and shot.usd != "guides":
         raise ValueError(f"--usd with --workers / --scheduler writes the guides only; this shot asks for "
                          f"usd={shot.usd!r} (the dense hair exists on the workers): run it serially")
     total = shot.frames if frames is None else frames
-    out = make_out_dir(out_dir)
-    done, pending = _resume_point(out, sim, shot) if resume else (0, [])
+    done, pending = _resume_point(out, sim, shot, total) if resume else (0, [])
     usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     job = RenderJob(script=str(Path(script).resolve()), settings=tuple(sorted((settings or {}).items())),
                     overrides=tuple(sorted((overrides or {}).items())))
@@ -213,6 +215,7 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
         summary["usd"] = str(usd_writer.path)
     if len(set(written)) != len(written):  # cannot happen: one task per frame; checked all the same
         raise RuntimeError(f"{out}: a frame was written twice: {sorted(written)}")
+    lock.close()
     return summary
 
 
@@ -273,14 +276,14 @@ def _main(argv=None) -> int:
     import argparse
     import json
     import sys
-    parser = argparse.ArgumentParser(prog="python -m taichi_hair.app.cluster", description=bench_rendering.__doc__)
+    from ..validation import cli_int, one_line_parser_class
+    from .runner import add_image_arguments
+    parser = one_line_parser_class()(prog="python -m taichi_hair.app.cluster", description=bench_rendering.__doc__)
     parser.add_argument("scene")
-    parser.add_argument("--frames", type=int, default=48)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--width", type=int)
-    parser.add_argument("--height", type=int)
-    parser.add_argument("--dense", type=int)
+    parser.add_argument("--frames", type=cli_int("--frames", 1, 100_000), default=48)
+    parser.add_argument("--workers", type=cli_int("--workers", 1, 256), default=2)
+    parser.add_argument("--rounds", type=cli_int("--rounds", 1, 1000), default=3)
+    add_image_arguments(parser)
     args = parser.parse_args(argv)
     overrides = {k: v for k, v in (("width", args.width), ("height", args.height), ("dense_strands", args.dense))
                  if v is not None}

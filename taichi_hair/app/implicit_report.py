@@ -198,7 +198,7 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
     integrators, log-log) when there are accuracy rows."""
     from .runner import load_scene_module
     from .. import runtime
-    module = load_scene_module(script)
+    module = load_scene_module(script) if scene_rows else None  # the cantilever alone needs no scene
     runtime.init(precision=getattr(module, "PRECISION", "float32"))
     result = {"scene": str(script), "precision": runtime.precision(), "speed": [], "accuracy": None,
               "every": every, "seconds": seconds,
@@ -267,13 +267,14 @@ def format_implicit(result: dict) -> str:
 
 
 def add_parser(sub) -> None:
+    from ..validation import cli_int, cli_real
     p = sub.add_parser("implicit", help="the implicit step against the explicit one: speed and accuracy "
                                         "against a tiny-step reference on a scene")
     p.add_argument("--scene", default="scenes/shake_curly.py")
-    p.add_argument("--frames", type=int, default=12, help="frames of the whole scene timed (0: skip)")
-    p.add_argument("--every", type=int, default=10, help="accuracy on every k-th guide")
-    p.add_argument("--seconds", type=float, default=0.5, help="simulated seconds of the accuracy runs")
-    p.add_argument("--reference-dt", type=float, default=1e-4, help="the explicit reference's dt [s]")
+    p.add_argument("--frames", type=cli_int("--frames", 0, 100_000), default=12, help="frames of the whole scene timed (0: skip)")
+    p.add_argument("--every", type=cli_int("--every", 1, 100_000), default=10, help="accuracy on every k-th guide")
+    p.add_argument("--seconds", type=cli_real("--seconds", 0.0, 100.0, unit="s"), default=0.5, help="simulated seconds of the accuracy runs")
+    p.add_argument("--reference-dt", type=cli_real("--reference-dt", 0.0, 0.1, unit="s"), default=1e-4, help="the explicit reference's dt [s]")
     p.add_argument("--steps-ms", default=",".join(f"{ms:g}" for ms in STEPS_MS),
                    help="comma-separated steps [ms] of the accuracy rows (default %(default)s)")
     p.add_argument("--out", default="out/reports")

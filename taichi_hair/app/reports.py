@@ -61,6 +61,7 @@ from ..world.motion import Shake
 from ..world.scene import PROJECTIONS
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
+from ..validation import cli_real, one_line_parser_class
 
 REPORT_MARK = "-- taichi_hair report json --"
 BEAM_LENGTH = 1.0
@@ -1044,7 +1045,9 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
     that one. integrator, projection: run every case with this one (None: each case's own). With a dask
     `client`, the cases are spread over its cluster instead. Writes
     stability.json to out_dir and returns the result."""
-    duration = duration or STABILITY_DURATION[bool(quick)]
+    duration = STABILITY_DURATION[bool(quick)] if duration is None else duration
+    if not (isinstance(duration, (int, float)) and 0 < duration <= 100):
+        raise ValueError(f"duration (--duration) must be in (0, 100] s, got {duration!r}")
     cases = list(cases if cases is not None else stability_cases(quick))
     if precision != "both":
         cases = [replace(c, precision=precision) for c in cases]
@@ -1198,7 +1201,8 @@ def _add_commands(sub):
     stab.add_argument("--out", default="out/reports", help="folder for stability.json")
     stab.add_argument("--arch", default="cpu")
     stab.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    stab.add_argument("--duration", type=float, help="simulated seconds per case (default 0.2, quick 0.1)")
+    stab.add_argument("--duration", type=cli_real("--duration", 0.0, 100.0, unit="s"),
+                      help="simulated seconds per case (default 0.2, quick 0.1)")
     stab.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
                       help="run every case with this integrator (default: each case's own, explicit)")
     stab.add_argument("--projection", default=None, choices=PROJECTIONS,
@@ -1219,7 +1223,7 @@ def add_parsers(sub) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m taichi_hair.app.reports", description=__doc__,
+    parser = one_line_parser_class()(prog="python -m taichi_hair.app.reports", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_commands(parser.add_subparsers(dest="report", required=True))
     args = parser.parse_args(argv)

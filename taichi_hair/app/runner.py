@@ -19,8 +19,16 @@ from . import cluster
 from ..world.colliders import _scalar, _vec
 from ..progress import ProgressBar
 from ..world.scene import PROJECTIONS, STRAIN_CHOICES, Scene
+from ..validation import cli_int
+from .outdir import STATE_FILE, claim_out_dir, naming_file
 
-STATE_FILE = "state.npz"
+# Image size limits: each side at most MAX_IMAGE_SIDE px, and width x height x supersample^2 (the
+# pixels the rasteriser holds) at most MAX_IMAGE_PIXELS: about 75 bytes of memory per pixel (1.5 GB
+# measured at 4096 x 4096), so about 5 GB at the limit (README, "Running scenes").
+MAX_IMAGE_SIDE = 16384
+MAX_IMAGE_PIXELS = 8192 * 8192
+MAX_FRAMES = 1_000_000
+MAX_DENSE = 10_000_000
 PROGRESS_FILE = "progress.json"
 GUIDES_DIR = "guides"  # frames simulated by a cluster run and not yet rendered
 
@@ -59,6 +67,12 @@ class Shot:
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("width", "height"):
+            if getattr(self, name) > MAX_IMAGE_SIDE:
+                raise ValueError(f"{name} must be at most {MAX_IMAGE_SIDE} px, got {getattr(self, name)}")
+        if self.width * self.height * self.supersample ** 2 > MAX_IMAGE_PIXELS:
+            raise ValueError(f"width x height x supersample^2 must be at most {MAX_IMAGE_PIXELS} pixels "
+                             f"(8192 x 8192), got {self.width} x {self.height} x {self.supersample}^2")
         if self.usd not in ("guides", "dense", "both"):
             raise ValueError(f"usd must be 'guides', 'dense' or 'both', got {self.usd!r}")
         if not (isinstance(self.dense_strands, int) and self.dense_strands >= 0):
@@ -101,11 +115,18 @@ def load_scene_module(path):
     module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
-    except Exception as err:  # the script's own error: name it (the CLI's --debug shows where)
-        raise SceneScriptError(f"scene script {path} failed to load: {type(err).__name__}: {err}") from err
+    except (Exception, SystemExit) as err:  # the script's own error or exit: name it (--debug shows where)
+        raise SceneScriptError(f"scene script {path} failed to load: {_described(err)}") from err
     if not callable(getattr(module, "build", None)):
         raise ValueError(f"scene script {path} must define build() returning a taichi_hair.Scene")
     return module
+
+
+def _described(err) -> str:
+    """An exception as 'Type: message'; sys.exit(code) as 'sys.exit(code)' (a script may not end the run)."""
+    if isinstance(err, SystemExit):
+        return f"sys.exit({err.code!r}) (a scene script may not end the run)"
+    return f"{type(err).__name__}: {err}"
 
 
 class SceneScriptError(ValueError):
@@ -119,8 +140,8 @@ def _call_script(script, module, name, expected):
         value = getattr(module, name)()
     except ValueError:
         raise  # already names its parameter
-    except Exception as err:
-        raise SceneScriptError(f"scene script {script}: {name}() raised {type(err).__name__}: {err}") from err
+    except (Exception, SystemExit) as err:
+        raise SceneScriptError(f"scene script {script}: {name}() raised {_described(err)}") from err
     if not isinstance(value, expected):
         raise SceneScriptError(f"scene script {script}: {name}() must return a taichi_hair "
                                f"{expected.__name__}, got {type(value).__name__}")
@@ -258,16 +279,6 @@ def prepare_run(script, *, overrides=None, settings=None, draw=True) -> Prepared
                        writer=FrameWriter(shot, scene))
 
 
-def make_out_dir(out_dir) -> Path:
-    """The output folder with its frames/ subfolder (ValueError naming --out if it cannot be made)."""
-    out = Path(out_dir)
-    try:
-        (out / "frames").mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise ValueError(f"{out}: cannot create the output folder (--out): {err.strerror or err}") from None
-    return out
-
-
 def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, overrides=None,
               usd=None, settings=None, on_frame=None) -> dict:
     """Simulate, interpolate and render `script` into out_dir: frames/frame_NNNNN.png, the MP4,
@@ -279,11 +290,18 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     summary dict."""
     if usd is not None:
         _check_usd(usd)
+    out, lock = claim_out_dir(out_dir, script, frames=frames, resume=resume, usd=usd)
+    try:
+        return _run_locked(script, out, frames, resume, progress, overrides, usd, settings, on_frame)
+    finally:
+        lock.close()
+
+
+def _run_locked(script, out, frames, resume, progress, overrides, usd, settings, on_frame) -> dict:
     run = prepare_run(script, overrides=overrides, settings=settings)
     shot, sim = run.shot, run.sim
     total = shot.frames if frames is None else frames
-    out = make_out_dir(out_dir)
-    done, pending = _resume_point(out, sim, shot) if resume else (0, [])
+    done, pending = _resume_point(out, sim, shot, total) if resume else (0, [])
     usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
@@ -346,8 +364,9 @@ def remove_guides(out, frame) -> None:
 def write_video(out, script, shot, total) -> Path:
     """The MP4 of frames 0..total-1 (read back from their PNGs), <out>/<scene>.mp4."""
     import render
-    return render.write_mp4(Path(out) / f"{Path(script).stem}.mp4",
-                            (render.read_png(frame_path(out, k)) for k in range(total)), fps=shot.fps)
+    path = Path(out) / f"{Path(script).stem}.mp4"
+    with naming_file(path):
+        return render.write_mp4(path, (render.read_png(frame_path(out, k)) for k in range(total)), fps=shot.fps)
 
 
 def _check_usd(kind):
@@ -389,14 +408,16 @@ def _checkpoint(out, sim, shot, frames_done):
     """One atomic record: the state file holds the frame count and frame step with the state
     (written to a temporary file and renamed); progress.json is a copy for people and monitors,
     also replaced atomically, never read back."""
-    sim.save_state(out / STATE_FILE, extra={"frames_done": frames_done, "frame_dt": shot.frame_dt,
-                                             "fps": shot.fps})
+    with naming_file(out / STATE_FILE):
+        sim.save_state(out / STATE_FILE, extra={"frames_done": frames_done, "frame_dt": shot.frame_dt,
+                                                 "fps": shot.fps})
     tmp = out / (PROGRESS_FILE + ".tmp")
-    tmp.write_text(json.dumps({"frames_done": frames_done, "time": sim.time}))
+    with naming_file(tmp):
+        tmp.write_text(json.dumps({"frames_done": frames_done, "time": sim.time}))
     tmp.replace(out / PROGRESS_FILE)
 
 
-def _resume_point(out, sim, shot) -> tuple:
+def _resume_point(out, sim, shot, total=None) -> tuple:
     """(frames simulated, frames of those still to render): restore the simulator from the last
     checkpoint, after checking that the record is whole and agrees with itself and this shot
     (ValueError naming the file). A frame below the count may lack its PNG only if its guides
@@ -420,6 +441,9 @@ def _resume_point(out, sim, shot) -> tuple:
     if not (0 <= done and abs(t - done / fps) <= 1e-6 * max(1.0, t)):
         raise ValueError(f"{state}: inconsistent checkpoint: {done} frames done at fps {fps} is "
                          f"{done / fps:.6g} s, but its state is at t = {t:.6g} s; delete {out} to start over")
+    if total is not None and done > total:
+        raise ValueError(f"{out}: {done} frames are already finished, more than the {total} asked for "
+                         f"(--resume would cut the video short): ask for {done} frames or more")
     pending = [k for k in range(done) if not frame_path(out, k).exists()]
     missing = [k for k in pending if not guides_path(out, k).exists()]
     if missing:
@@ -451,7 +475,8 @@ def render_frame(path, frame, guides, pose, run: PreparedRun, times):
         hair = [guides[s, : counts[s]] for s in range(run.sim.n_strands)]
     times["interpolation"].append(time.perf_counter() - start)
     start = time.perf_counter()
-    run.writer.write(path, frame, hair, (rotation, translation))
+    with naming_file(path):
+        run.writer.write(path, frame, hair, (rotation, translation))
     times["rendering"].append(time.perf_counter() - start)
     return hair
 
@@ -477,11 +502,10 @@ def add_parser(sub):
     p = sub.add_parser("run", help="simulate a scene script and render frames, an MP4 and checkpoints")
     p.add_argument("scene", help="path of a scene script, e.g. scenes/shake_curly.py")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--frames", type=int, default=None, help="frames to make (default: the scene's shot)")
+    p.add_argument("--frames", type=cli_int("--frames", 1, MAX_FRAMES), default=None,
+                   help="frames to make (default: the scene's shot)")
     p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
-    p.add_argument("--dense", type=int, default=None, help="dense strands (0: draw the guides)")
+    add_image_arguments(p)
     p.add_argument("--usd", nargs="?", const="usdc", default=None, choices=["usdc", "usda"],
                    help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra)")
     p.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
@@ -493,6 +517,14 @@ def add_parser(sub):
     p.add_argument("--no-progress", action="store_true")
     cluster.add_arguments(p)
     p.set_defaults(func=main)
+
+
+def add_image_arguments(p) -> None:
+    """--width, --height (each in [1, MAX_IMAGE_SIDE] px) and --dense (in [0, MAX_DENSE])."""
+    p.add_argument("--width", type=cli_int("--width", 1, MAX_IMAGE_SIDE), default=None)
+    p.add_argument("--height", type=cli_int("--height", 1, MAX_IMAGE_SIDE), default=None)
+    p.add_argument("--dense", type=cli_int("--dense", 0, MAX_DENSE), default=None,
+                   help="dense strands (0: draw the guides)")
 
 
 def shot_overrides(args) -> dict:

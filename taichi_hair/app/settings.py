@@ -71,11 +71,18 @@ def _parse_value(path, item):
 
 def sweep_points(settings) -> list:
     """The cartesian product of [(path, values), ...] as dicts {path: value}, first path slowest.
-    ValueError for a path given twice."""
+    ValueError for a path given twice, or a value listed twice for one path (two values that print
+    alike, 1e-4 and 0.0001, are one: they would share a run folder and its summary)."""
     paths = [p for p, _ in settings]
     twice = sorted({p for p in paths if paths.count(p) > 1})
     if twice:
         raise ValueError(f"--set {twice[0]} is given more than once (list its values in one --set)")
+    for path, values in settings:
+        shown = [format_value(v) for v in values]
+        again = next((v for k, v in enumerate(shown) if v in shown[:k]), None)
+        if again is not None:
+            raise ValueError(f"--set {path} lists the value {again} more than once (as written in folder "
+                             f"names and tables): each value must be distinct")
     return [dict(zip(paths, combo)) for combo in itertools.product(*(v for _, v in settings))]
 
 

@@ -280,10 +280,10 @@ def _check(hair, n_points):
             p = int(bad[0] // width)
             strand = int(np.searchsorted(np.cumsum(counts), p, side="right"))
             return f"{name} of point {p} (strand {strand}) is not finite (NaN or inf)"
-    return _coordinate_problem(np.asarray(hair.points, dtype=np.float64).reshape(-1, 3), "point")
+    return coordinate_problem(np.asarray(hair.points, dtype=np.float64).reshape(-1, 3), "point")
 
 
-def _coordinate_problem(points, what):
+def coordinate_problem(points, what):
     """A sentence if a coordinate of points [P, 3] is beyond +-MAX_COORDINATE, else None."""
     big = np.flatnonzero(np.abs(points).max(axis=1, initial=0.0) > MAX_COORDINATE) if len(points) else []
     if len(big):

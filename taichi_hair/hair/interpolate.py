@@ -547,11 +547,13 @@ def bench_interpolation(n_dense=100_000, n_nodes=32, n_guides=1000, repeats=5) -
 def _main(argv=None):
     import argparse
     from ..runtime import init
-    parser = argparse.ArgumentParser(description="Benchmark dense hair interpolation.")
-    for name, default in (("n-dense", 100_000), ("n-nodes", 32), ("n-guides", 1000), ("repeats", 5)):
-        parser.add_argument(f"--{name}", type=int, default=default)
+    from ..validation import cli_int, one_line_parser_class
+    parser = one_line_parser_class()(description="Benchmark dense hair interpolation.")
+    for name, default, low, high in (("n-dense", 100_000, 1, 10_000_000), ("n-nodes", 32, 3, 10_000),
+                                     ("n-guides", 1000, 1, 1_000_000), ("repeats", 5, 1, 1000)):
+        parser.add_argument(f"--{name}", type=cli_int(f"--{name}", low, high), default=default)
     parser.add_argument("--arch", default="cpu")
-    parser.add_argument("--precision", default="float32")
+    parser.add_argument("--precision", default="float32", choices=["float32", "float64"])
     args = parser.parse_args(argv)
     init(args.arch, args.precision)
     result = bench_interpolation(args.n_dense, args.n_nodes, args.n_guides, args.repeats)

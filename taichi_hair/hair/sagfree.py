@@ -800,11 +800,13 @@ def report_main(args) -> int:
 
 def add_report_parser(sub) -> None:
     """`report sagfree` on an argparse subparsers object."""
+    from ..validation import cli_int, cli_real
     p = sub.add_parser("sagfree", help="node drift under gravity with and without the sag-free start")
     p.add_argument("--quick", action="store_true", help="30 guides, 1 s")
-    p.add_argument("--guides", type=int, default=200)
-    p.add_argument("--seconds", type=float, default=5.0)
-    p.add_argument("--drag", type=float, default=3e-4, help="air drag [N s/m per m of strand]")
+    p.add_argument("--guides", type=cli_int("--guides", 1, 100_000), default=200)
+    p.add_argument("--seconds", type=cli_real("--seconds", 0.0, 1000.0, unit="s"), default=5.0)
+    p.add_argument("--drag", type=cli_real("--drag", 0.0, 1.0, low_open=False, unit="N s/m per m"), default=3e-4,
+                   help="air drag [N s/m per m of strand]")
     p.add_argument("--precision", default="float64", choices=["float32", "float64"],
                    help="float64 (default): in float32 the position-based velocities of the tiny "
                         "substeps a scalp groom needs random-walk weakly held strands by millimetres")

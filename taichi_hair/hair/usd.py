@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .hairfile import HairFileError
+from .hairfile import HairFileError, coordinate_problem
 
 EXTRA_HINT = "pip install 'taichi_hair[usd]'"
 CUBIC_BASES = ("bezier", "bspline", "catmullRom")
@@ -99,21 +99,30 @@ def read_usd_curves(path, prim=None, n_nodes=None, time=None) -> UsdCurves:
     scale = float(UsdGeom.GetStageMetersPerUnit(stage))
     if not (np.isfinite(scale) and scale > 0):
         raise HairFileError(f"{path}: metersPerUnit must be > 0, got {scale}")
-    y_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    up = UsdGeom.GetStageUpAxis(stage)
+    if up not in (UsdGeom.Tokens.y, UsdGeom.Tokens.z):
+        raise HairFileError(f"{path}: upAxis must be Y or Z, got {str(up)!r}")
+    y_up = up == UsdGeom.Tokens.y
     prims = _curve_prims(stage, path, prim, UsdGeom)
     strands, widths, colors, names, index, uniform = [], [], [], [], [], []
     for p in prims:
         s, w, c, pv = _read_prim(p, path, code, n_nodes, UsdGeom)
         world = np.asarray(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(code), dtype=np.float64)
+        if not np.all(np.isfinite(world)) or abs(np.linalg.det(world[:3, :3])) == 0:
+            raise HairFileError(f"{path}: prim {p.GetPath()}: its transform is not finite or is singular")
         mean_scale = abs(np.linalg.det(world[:3, :3])) ** (1.0 / 3.0)
-        for k, pts in enumerate(s):
-            x = pts @ world[:3, :3] + world[3, :3]
-            if y_up:
-                x = np.stack([x[:, 0], -x[:, 2], x[:, 1]], axis=1)
-            strands.append(x * scale)
-            widths.append(None if w is None else w[k] * scale * mean_scale)
-            names.append(str(p.GetPath()))
-            index.append(k)
+        # every curve of the prim in one product: a product per curve cost 1e6 calls on 1e6 curves
+        x = np.concatenate(s) @ world[:3, :3] + world[3, :3]
+        if y_up:
+            x = np.stack([x[:, 0], -x[:, 2], x[:, 1]], axis=1)
+        x *= scale
+        problem = coordinate_problem(x, "point (in metres, transformed)")
+        if problem:
+            raise HairFileError(f"{path}: prim {p.GetPath()}: {problem}")
+        strands.extend(np.split(x, np.cumsum([len(pts) for pts in s])[:-1]))
+        widths.extend([None] * len(s) if w is None else [wk * (scale * mean_scale) for wk in w])
+        names.extend([str(p.GetPath())] * len(s))
+        index.extend(range(len(s)))
         colors.append(c if c is not None else np.full((len(s), 3), np.nan))
         uniform.append(pv)
     return _assemble(path, strands, widths, colors, names, index, uniform)
@@ -174,6 +183,9 @@ def _read_prim(p, path, code, n_nodes, UsdGeom):
     if len(bad):
         curve = int(np.searchsorted(np.cumsum(counts), bad[0], side="right"))
         raise HairFileError(f"{where}: non-finite (NaN or inf) point {bad[0]} in curve {curve}")
+    problem = coordinate_problem(points, "point")
+    if problem:
+        raise HairFileError(f"{where}: {problem}")
     kind, basis, wrap = (str(curves.GetTypeAttr().Get()), str(curves.GetBasisAttr().Get()),
                          str(curves.GetWrapAttr().Get()))
     if wrap == "periodic":
@@ -199,6 +211,13 @@ def _read_prim(p, path, code, n_nodes, UsdGeom):
     else:
         strands = cvs
         widths = None if widths is None else [w for w, _ in widths]
+    if widths is not None:
+        flat = np.concatenate(widths)
+        bad = np.flatnonzero(~(np.isfinite(flat) & (flat > 0)))
+        if len(bad):
+            curve = int(np.searchsorted(np.cumsum([len(w) for w in widths]), bad[0], side="right"))
+            raise HairFileError(f"{where}: width {float(flat[bad[0]])!r} of curve {curve}; widths must be "
+                                f"finite and > 0")
     colors, uniform = _curve_primvars(p, code, counts, starts, where, UsdGeom)
     return strands, widths, colors, uniform
 
@@ -445,14 +464,19 @@ class UsdCurvesWriter:
     def save(self):
         """Export the stage to a temporary file beside `path` and rename it over `path`."""
         tmp = self.path.with_name(f"{self.path.stem}.tmp{self.path.suffix}")
+        if self.path.is_dir():
+            raise HairFileError(f"{self.path}: cannot write the USD file: a folder of that name is in the way")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             ok = self.stage.GetRootLayer().Export(str(tmp))
+            if ok:
+                os.replace(tmp, self.path)
         except Exception as exc:
+            tmp.unlink(missing_ok=True)
             raise HairFileError(f"{self.path}: cannot write ({' '.join(str(exc).split())[:200]})") from None
         if not ok:
+            tmp.unlink(missing_ok=True)
             raise HairFileError(f"{self.path}: cannot write the USD file")
-        os.replace(tmp, self.path)
 
 
 def _ndim(x) -> int:

@@ -1,12 +1,23 @@
 """Checkpoints: a simulator's dynamic state (positions, velocities, material angles, root
 frames, time, step count, head pose) in an .npz file, written atomically, read back checked.
-Functions of a Simulator (they read and restore its clock and head pose)."""
+Functions of a Simulator (they read and restore its clock and head pose).
 
+Everything the next step reads is in the record, so a resumed simulator continues bit for bit
+as the uninterrupted one: besides the state proper, the frames the last step left (Bishop and
+material frames, curvature binormals: recomputing them in another kernel differs in the last
+bits) and the implicit step's history (previous velocities, displacements, elastic forces,
+tensions) with the step it was made for."""
+
+import math
 import os
 
 import numpy as np
 
 from ..rods import arrays
+
+
+# state arrays beyond x, v, theta and the root frames that the next step reads
+CARRIED = ("bishop_u", "bishop_v", "m1", "m2", "kb", "history", "tension")
 
 
 def pose_rows(rotation, translation):
@@ -27,7 +38,9 @@ def save_state(sim, path, extra=None) -> None:
              theta=sim.state.theta.to_numpy(), root_t=sim.state.root_t.to_numpy(),
              root_u=sim.state.root_u.to_numpy(), time=sim.time, steps=sim.steps_taken,
              head=pose_rows(*sim._head), head_prev=pose_rows(*sim._head_prev),
-             shape=np.array([sim.groom.n_strands, sim.groom.max_nodes]))
+             shape=np.array([sim.groom.n_strands, sim.groom.max_nodes]),
+             **{name: getattr(sim.state, name).to_numpy() for name in CARRIED},
+             history_h=math.nan if sim._history_h is None else sim._history_h)
     os.replace(tmp, path)
 
 
@@ -37,7 +50,8 @@ def load_state(sim, path) -> None:
     try:
         with np.load(path) as data:
             saved = {k: data[k] for k in ("x", "v", "theta", "time", "steps", "head", "head_prev", "shape")}
-            saved.update({k: data[k] for k in ("root_t", "root_u") if k in data})  # older files lack them
+            # older files lack them: frames are then recomputed and the implicit history reseeded
+            saved.update({k: data[k] for k in ("root_t", "root_u", "history_h", *CARRIED) if k in data})
     except (OSError, KeyError, ValueError) as err:
         raise ValueError(f"{path}: not a taichi_hair state file ({err})") from None
     expected = [sim.groom.n_strands, sim.groom.max_nodes]
@@ -51,8 +65,16 @@ def load_state(sim, path) -> None:
     sim.time, sim.steps_taken = float(saved["time"]), int(saved["steps"])
     sim._head = (saved["head"][:3].astype(np.float64), saved["head"][3].astype(np.float64))
     sim._head_prev = (saved["head_prev"][:3].astype(np.float64), saved["head_prev"][3].astype(np.float64))
+    sim._orient_roots()
     for k in ("root_t", "root_u"):
         if k in saved:
             getattr(sim.state, k).from_numpy(saved[k].astype(arrays.np_float()))
-    sim._orient_roots()
     sim.update_frames()
+    now = {k: getattr(sim.state, k).to_numpy() for k in CARRIED}
+    if all(k in saved and saved[k].shape == now[k].shape for k in CARRIED):
+        for k in CARRIED:
+            getattr(sim.state, k).from_numpy(saved[k].astype(now[k].dtype))
+        h = float(saved["history_h"])
+        sim._history_h = None if math.isnan(h) else h
+    else:
+        sim._history_h = None

@@ -21,7 +21,9 @@ class Control:
     mean wind [m/s]); gusts [N_GUSTS] and modes [N_MODES, 3] vec3 wind tables; drag [N s/m per
     metre]; user_force [S, N] vec3 [N] or None; kinds/geometry/params: analytic colliders;
     sdf [nx, ny, nz] m and sdf_meta [3] vec3 (origin, (spacing, margin, friction), (on head, 0, 0));
-    tools [T] vec4 and tool_points [K+1, T] vec3; max_speed [m/s]; time [s] of the launch start."""
+    tools [T] vec4 and tool_points [K+1, T] vec3; max_speed [m/s]; first_step: the index of the
+    launch's first (sub)step since t = 0 (the kernels take time as index x step, never as a sum
+    carried from launch to launch, so the grouping of steps into launches changes nothing)."""
 
     head: object
     loads: object
@@ -37,7 +39,7 @@ class Control:
     tools: object
     tool_points: object
     max_speed: float
-    time: float = 0.0
+    first_step: int = 0
     host: dict = field(default_factory=dict)  # numpy twins of head and tool_points (load_poses)
 
 

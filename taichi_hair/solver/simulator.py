@@ -187,7 +187,7 @@ class Simulator:
             extensible=bool(extensible), strain=self.rods.strain)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
-        self.time = 0.0
+        self._substep = 0  # (sub)steps of dt / substeps since t = 0: the clock, see `time`
         self.steps_taken = 0
         self._snapshot = None
         self._potential = arrays.scalars((groom.n_strands,))
@@ -218,6 +218,16 @@ class Simulator:
         """The simulator of a `Scene`: its groom, material, head colliders and motion, wind,
         touch tools and hair interaction; `options` go to the constructor (twist, drag, ...)."""
         return cls(scene.groom, scene.material, dt=dt, **{**scene.simulator_options(), **options})
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]: the substeps taken times the substep dt / substeps, a function of the
+        step index (never a running sum), so any grouping of steps into calls ends at one time."""
+        return self._substep * (self.dt / self.substeps)
+
+    @time.setter
+    def time(self, value: float) -> None:
+        self._substep = int(round(float(value) / (self.dt / self.substeps)))
 
     @property
     def stable_dt(self) -> float:
@@ -440,7 +450,7 @@ class Simulator:
         while remaining > 0:
             count = 1 if staged and not small_contact else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
-            self.control.time = self.time
+            self.control.first_step = self._substep
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
@@ -460,7 +470,7 @@ class Simulator:
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
-            self.time += count * h
+            self._substep += count
             self._head_prev = self._head
             remaining -= count
         self.steps_taken += n
@@ -480,7 +490,7 @@ class Simulator:
 
     def _load_launch(self, h, count) -> bool:
         """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
-        times = self.time + h * np.arange(count + 1)
+        times = (self._substep + np.arange(count + 1)) * h
         if self.root_motion is not None:
             poses = [self._head_prev] + [self._head_at(t) for t in times[1:]]
             self._head = poses[-1]
@@ -512,19 +522,19 @@ class Simulator:
                               for name in ("x", "v", "theta", "root_t", "root_u")}
         for name, copy in self._snapshot.items():
             copy.copy_from(getattr(st, name))
-        self._snapshot_clock = (self.time, self.steps_taken, self._head)
+        self._snapshot_clock = (self._substep, self.steps_taken, self._head)
 
     def _diverged(self, h, bad_step):
         bad = np.flatnonzero(bad_step >= 0)
         first = bad[np.argmin(bad_step[bad])]
         counters = self.state.counters.to_numpy()
         cap_hits = int(counters[:, COUNTERS["projection_cap_hits"]].sum())
-        t = self.time + (bad_step[first] + 1) * h
-        step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0]) / self.dt - 1e-9))
+        t = (self._substep + bad_step[first] + 1) * h
+        step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0] * h) / self.dt - 1e-9))
         for name, copy in self._snapshot.items():
             getattr(self.state, name).copy_from(copy)
         self._history_h = None
-        self.time, self.steps_taken, self._head = self._snapshot_clock
+        self._substep, self.steps_taken, self._head = self._snapshot_clock
         self._head_prev = self._head
         self._orient_roots()
         self.update_frames()
@@ -554,7 +564,6 @@ class Simulator:
     def load_state(self, path) -> None:
         """Restore a state written by `save_state` for this same groom; see checkpoint.load_state."""
         load_state(self, path)
-        self._history_h = None
 
     def set_user_forces(self, force) -> None:
         """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""

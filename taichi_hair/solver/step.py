@@ -128,7 +128,7 @@ DriveArgs = ti.types.argpack(
     tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2, clip=Vec3s3)
 ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
 StepScalars = ti.types.struct(
-    h=float, t0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
+    h=float, k0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
     twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
 
 
@@ -231,9 +231,10 @@ class StepBundles:
 
 
 def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
-    """The launch's scalars, in StepScalars' field order: step h [s] from control.time; pins
+    """The launch's scalars, in StepScalars' field order: step h [s], the launch's first step index
+    control.first_step (k0: time k0 h; a whole number, exact in float32 up to 2^24 steps); pins
     pin_fraction = (f0, df)."""
-    return (h, control.time, control.drag, control.max_speed, plan.projection_tol,
+    return (h, float(control.first_step), control.drag, control.max_speed, plan.projection_tol,
             plan.projection_iterations, plan.twist_tol, plan.twist_iterations, plan.n_analytic,
             pin_fraction[0], pin_fraction[1])
 
@@ -247,7 +248,7 @@ def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: t
     """force += m g - drag l_i (v - u_air) + grab springs; loads = (gravity [m/s^2], mean wind
     [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field;
     grabs at the tools' positions at the start of step k."""
-    t = sc.t0 + k * sc.h
+    t = (sc.k0 + k) * sc.h  # from the step's index, not a running sum: the same whatever the launches
     for i in range(md.node_count[s]):
         air = dr.loads[1]
         if ti.static(fl.wind_field):
@@ -709,14 +710,14 @@ PROJECTION = STAGE_NAMES.index("projection")
 # ---- the fused driver: many steps in one launch -------------------------------------------------
 
 @ti.kernel
-def advance_strands(n_steps: int, fl: ti.template(), h: float, t0: float, drag: float, max_speed: float,
+def advance_strands(n_steps: int, fl: ti.template(), h: float, k0: float, drag: float, max_speed: float,
                     projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
                     twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
                     md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
-    """n_steps steps of sc.h [s] from time sc.t0 for every strand (head poses as in the module
+    """n_steps steps of sc.h [s] from step index sc.k0 (time k0 h) for every strand (head poses as in the module
     doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
     step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
-    sc = StepScalars(h=h, t0=t0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
     for s in range(st.x.shape[0]):
@@ -761,14 +762,14 @@ def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: in
 # ---- the staged driver: stages in separate launches (per-stage timings; hair-hair interaction) --
 
 @ti.kernel
-def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: float, t0: float,
+def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: float, k0: float,
                drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
                twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float,
                pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """Stages first..last-1 of STAGES for one step of every strand; counters[s, BAD] is reset
     by the launch that runs the first stage and set to 0 where a stage failed. One thread per
     strand."""
-    sc = StepScalars(h=h, t0=t0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
     for s in range(st.x.shape[0]):
@@ -826,7 +827,7 @@ def read_step_values(params: ti.template()):
     """(StepScalars, self_contact, hash mask, friction, allowed depth [m], contact passes, steps)
     from params[STEP_VALUES:], as write_step_values put them."""
     v = ti.static(STEP_VALUES)
-    sc = StepScalars(h=params[v + 0], t0=params[v + 1], drag=params[v + 2], max_speed=params[v + 3],
+    sc = StepScalars(h=params[v + 0], k0=params[v + 1], drag=params[v + 2], max_speed=params[v + 3],
                      projection_tol=params[v + 4], projection_iterations=ti.cast(params[v + 5], ti.i32),
                      twist_tol=params[v + 6], twist_iterations=ti.cast(params[v + 7], ti.i32),
                      n_analytic=ti.cast(params[v + 8], ti.i32), pin_f0=params[v + 9], pin_df=params[v + 10])
@@ -921,7 +922,7 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
 
 
 @ti.kernel
-def write_step_values(params: Scalars1, h: float, t0: float, drag: float, max_speed: float,
+def write_step_values(params: Scalars1, h: float, k0: float, drag: float, max_speed: float,
                       projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
                       twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
                       self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float, iterations: ti.i32,
@@ -929,7 +930,7 @@ def write_step_values(params: Scalars1, h: float, t0: float, drag: float, max_sp
     """params[STEP_VALUES:] = StepScalars' fields in order, then self_contact, the hash mask,
     friction, the allowed depth [m], the contact passes per step and the steps of the launch
     (the fused kernels read them)."""
-    values = ti.Vector([h, t0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
+    values = ti.Vector([h, k0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
                         twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed,
                         iterations, n_steps], dt=float)
     for i in ti.static(range(17)):
@@ -997,7 +998,7 @@ def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: t
                         st: StateArgs, dr: DriveArgs):
     """The twist stage alone (twist-holding clips at their latest angles, head pose 1);
     counters[s, BAD] = 0 where it failed, else -1."""
-    sc = StepScalars(h=1.0, t0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+    sc = StepScalars(h=1.0, k0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
                      twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=1.0,
                      pin_df=0.0)
     for s in range(st.theta.shape[0]):

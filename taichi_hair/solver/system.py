@@ -19,6 +19,8 @@ from ..world.scene import INTEGRATORS
 from ..rods.twist import TWIST_MODES, held_twist_forces
 from ..validation import is_integer
 
+MAX_SET_STRETCH = 2.0  # set_positions: an inextensible edge at most this x its rest length
+
 
 IMPLICIT_KMOCH_REFUSAL = (
     "twist='kmoch' on elliptic strands (ellipticity > 1) runs with integrator='explicit': the rule's "
@@ -98,6 +100,7 @@ class RodSystem:
         if integrator == "implicit" and twist == "none" and elliptic:
             raise ValueError(IMPLICIT_FROZEN_ELLIPTIC_REFUSAL)
         self.groom, self.twist, self.root, self.integrator, self.strain = groom, twist, root, integrator, strain
+        self.extensible = bool(extensible)
         self.twist_iterations = int(twist_iterations)
         self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
         if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
@@ -130,11 +133,25 @@ class RodSystem:
     def set_positions(self, x) -> None:
         """Set node positions [S, N, 3] (metres) and recompute the frames; the material angles
         are kept (call `update_twist` to re-solve them). Refused like a Groom: segments shorter
-        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold)."""
+        than MIN_SEGMENT_LENGTH, turns sharper than MAX_TURNING_ANGLE_DEG (a fold), and for
+        inextensible strands an edge longer than MAX_SET_STRETCH x its rest length (the projection
+        would pull it back in one step: a kick the step reads as a blow-up)."""
         x = self._checked_nodes("positions", x, np.float64)  # positions are float64 (arrays.Points2)
         check_strand_geometry(x, self.groom.node_counts)
+        if not self.extensible:
+            self._check_stretch(x)
         self.state.x.from_numpy(x)
         self.update_frames()
+
+    def _check_stretch(self, x):
+        rest = self.model.rest_length.to_numpy().astype(np.float64)
+        used = np.arange(rest.shape[1])[None, :] < (self.groom.node_counts - 1)[:, None]
+        ratio = np.where(used, np.linalg.norm(np.diff(x, axis=1), axis=2) / np.where(used, rest, 1.0), 1.0)
+        if ratio.max() > MAX_SET_STRETCH:
+            s, j = np.unravel_index(np.argmax(ratio), ratio.shape)
+            raise ValueError(f"positions: edge {j} of strand {s} is {ratio[s, j]:.3g} x its rest length "
+                             f"{rest[s, j]:.3g} m; inextensible edges may be set at most {MAX_SET_STRETCH:g} x "
+                             f"their rest length")
 
     def set_velocities(self, v) -> None:
         """Set node velocities [S, N, 3] in m/s."""
