@@ -57,8 +57,9 @@ def _positive(name, value, unit, upper=math.inf):
 class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
-    dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
-        with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
+    dt: time step [s] of `step`, at most; past the explicit stability bound each step runs as
+        equal substeps within it, silently (the same work as that smaller dt; `sim.substeps`,
+        `sim.stable_dt` and `sim.stats()` say how many and why), or is refused with strict=True. gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
         strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
     wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
     twist: "quasistatic" (default: Newton on dE/dtheta = 0 per strand, the energy-consistent
@@ -196,11 +197,6 @@ class Simulator:
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_start(strict)
-        if self.substeps > 1:
-            warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
-                          f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
-                          f"springs and the starting shape): each step runs {self.substeps} substeps of "
-                          f"{self.dt / self.substeps:.3g} s", RuntimeWarning, stacklevel=2)
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
