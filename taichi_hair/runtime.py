@@ -9,6 +9,8 @@ import sys
 
 import taichi as ti
 
+from .banner import print_banner
+
 _ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
 _PRECISIONS = {"float32": ti.f32, "float64": ti.f64}
 _state = {"arch": None, "precision": None}
@@ -50,6 +52,7 @@ def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, 
         # fast_math rewrites float64 sqrt as float32 on CUDA
         options["fast_math"] = False
     options.update(kwargs)
+    print_banner()
     with contextlib.redirect_stdout(sys.stderr):  # "[Taichi] Starting on arch=...": not data
         ti.init(**options)
     _state["arch"], _state["precision"] = arch, precision

@@ -193,6 +193,7 @@ def main(args) -> int:
             raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
                              f"pip install 'taichi_hair[bench]'") from None
         return bench_main(args)
+    apply_preset(args)
     strands = [int(s) for s in args.strands.split(",")]
     integrators = ("explicit", "implicit") if args.integrator == "both" else (args.integrator,)
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
@@ -217,20 +218,46 @@ def main(args) -> int:
     return 0
 
 
+# the table's size: the quick one by default (a couple of minutes on 2 cores, the implicit
+# step's long first compile left out), --full for the whole table; an option given wins
+QUICK = {"strands": "1,100,1000", "repeats": 3, "stage_steps": 3, "integrator": "explicit", "head_guides": 200,
+         "dense": 20_000}
+FULL = {"strands": "1,100,1000,10000", "repeats": 5, "stage_steps": 5, "integrator": "both", "head_guides": 1000,
+        "dense": 100_000}
+
+
+def apply_preset(args) -> None:
+    """Fill the table options not given on the command line from QUICK, or FULL with --full."""
+    for name, value in (FULL if args.full else QUICK).items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+
+
+def _preset(name) -> str:
+    return f"default: {QUICK[name]}, with --full {FULL[name]}"
+
+
 def add_parser(sub):
-    p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame)")
-    p.add_argument("--arch", default="cpu", help="cpu (default) or cuda where a GPU exists")
-    p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"])
-    p.add_argument("--strands", default="1,100,1000,10000", help="comma-separated guide counts")
-    p.add_argument("--repeats", type=int, default=5, help="timed frames per case (median)")
-    p.add_argument("--stage-steps", type=int, default=5, help="steps timed stage by stage")
-    p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
-    p.add_argument("--integrator", default="both", choices=["explicit", "implicit", "both"],
-                   help="rows for each integrator (default both)")
-    p.add_argument("--head-guides", type=int, default=1000,
-                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
-    p.add_argument("--dense", type=int, default=100_000,
-                   help="dense strands interpolated per frame on the interpolation row; 0 skips it")
+    p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame); "
+                                     "quick by default, --full for the whole table")
+    p.add_argument("--full", action="store_true",
+                   help="the whole table: 10000 guides, both integrators (the implicit step compiles for "
+                        "minutes on a cold cache), 1000 head guides, 100000 dense strands")
+    p.add_argument("--arch", default="cpu", help="cpu, or cuda where a GPU exists")
+    p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"], help="float type")
+    p.add_argument("--strands", default=None, help=f"comma-separated guide counts ({_preset('strands')})")
+    p.add_argument("--repeats", type=int, default=None, help=f"timed frames per case, median ({_preset('repeats')})")
+    p.add_argument("--stage-steps", type=int, default=None,
+                   help=f"steps timed stage by stage ({_preset('stage_steps')})")
+    p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"], help="twist update")
+    p.add_argument("--integrator", default=None, choices=["explicit", "implicit", "both"],
+                   help=f"rows for each integrator ({_preset('integrator')})")
+    p.add_argument("--head-guides", type=int, default=None,
+                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it "
+                        f"({_preset('head_guides')})")
+    p.add_argument("--dense", type=int, default=None,
+                   help="dense strands interpolated per frame on the interpolation row; 0 skips it "
+                        f"({_preset('dense')})")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
                               "columns also pip install \"cosseratbench[pyelastica,mujoco]\" "

@@ -195,9 +195,10 @@ def add_parser(sub):
                    help="a parameter and its values, e.g. material.youngs_modulus=1e9,3e9 or shot.frames=48 "
                         "(repeat for more: the cartesian product is run)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
-    p.add_argument("--dense", type=int, default=None, help="dense strands (0: draw the guides)")
+    p.add_argument("--width", type=int, default=None, help="image width [px] (default: the scene's shot)")
+    p.add_argument("--height", type=int, default=None, help="image height [px] (default: the scene's shot)")
+    p.add_argument("--dense", type=int, default=None,
+                   help="dense strands, 0 draws the guides (default: the scene's shot)")
     p.add_argument("--json", action="store_true", help="print the JSON table instead of the text one")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     cluster.add_arguments(p)

@@ -436,19 +436,29 @@ class Simulator:
         return self.root_motion is not None and count > 1
 
     def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
-        """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
-        stderr. A blow-up leaves the state at the end of the last healthy chunk."""
+        """Simulate exactly `seconds` [s]: the fewest equal steps of at most dt that fill it
+        (seconds / ceil(seconds / dt), as `taichi-hair run` fits its step to a frame; dt is
+        restored after), in chunks of about `chunk` seconds, with a progress bar on stderr.
+        A blow-up leaves the state at the end of the last healthy chunk."""
         if not (is_real(seconds) and seconds >= 0 and math.isfinite(seconds)):
             raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
-        total = int(round(seconds / self.dt))
+        if seconds == 0:
+            return
+        total = max(1, math.ceil(seconds / self.dt - 1e-9))
+        dt, substeps = self.dt, self.substeps
+        self.dt = seconds / total
+        self.substeps = self._substeps(strict=False)  # dt only shrank: never more than before
         per_chunk = max(1, int(round(chunk / self.dt)))
-        with ProgressBar(total * self.dt, "simulating", enabled=progress) as bar:
-            done = 0
-            while done < total:
-                k = min(per_chunk, total - done)
-                self.step(k)
-                done += k
-                bar.update(k * self.dt)
+        try:
+            with ProgressBar(seconds, "simulating", enabled=progress) as bar:
+                done = 0
+                while done < total:
+                    k = min(per_chunk, total - done)
+                    self.step(k)
+                    done += k
+                    bar.update(k * self.dt)
+        finally:
+            self.dt, self.substeps = dt, substeps
 
     def _take_snapshot(self):
         st = self.state
