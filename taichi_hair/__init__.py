@@ -10,9 +10,7 @@ Public API (see README.md):
     th.Shot(frames=..., fps=..., dt=..., width=..., height=..., dense_strands=...): how a scene script is filmed
 """
 
-from . import banner as _banner
-
-_banner.import_taichi_quietly()  # Taichi's banner goes to stderr when th.init starts Taichi
+from . import runtime as _runtime  # first: imports Taichi with its banner off (th.init prints it on stderr)
 
 from .app.runner import Shot
 from .world.colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
