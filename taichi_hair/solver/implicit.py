@@ -26,7 +26,7 @@ Held nodes (the root, pins) keep identity rows: the root placement and pins set 
 import taichi as ti
 
 from ..rods.arrays import edge, mat_block, point, step_displacement, vec3, vec3d, vec_block
-from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
+from ..rods.linalg import block_pentadiagonal_solve, product, thomas_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.frames import material_directors
 from ..rods.rod import SERIES_BELOW, edge_directors, first_node, node_edges, node_turn, rotation_scalars
@@ -212,7 +212,7 @@ def assemble_stiffness(s, clamp: ti.template(), twist_free: ti.template(), rotat
             for b in ti.static(range(a + 1)):
                 nb = i - 1 + b
                 if nb >= 0:
-                    st.blocks[s, i - 1 + a, a - b] += weighted.transpose() @ jac[b]
+                    st.blocks[s, i - 1 + a, a - b] += product(weighted, jac[b], True, False)
 
 
 @ti.func
