@@ -7,7 +7,6 @@ accuracy report (its tip is checked against the elastica in tests/test_step.py).
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 LENGTH = 0.3
 SEGMENTS = 30
@@ -21,6 +20,6 @@ def build() -> th.Scene:
     return th.Scene(groom=groom, material=material, drag=0.02, twist="none")
 
 
-def shot() -> Shot:
-    return Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.6, 0.5, 0.4),
+def shot() -> th.Shot:
+    return th.Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.6, 0.5, 0.4),
                 view=(0.00, 1.00, 0.05), reach=1.0)

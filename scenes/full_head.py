@@ -6,7 +6,6 @@ study (`taichi-hair report implicit --scene scenes/full_head.py`, docs/model.md)
 """
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:
@@ -19,6 +18,6 @@ def build() -> th.Scene:
         drag=5e-4)
 
 
-def shot() -> Shot:
-    return Shot(frames=48, fps=24, dt=1e-3, dense_strands=20000, hair_colour=(0.30, 0.18, 0.09),
+def shot() -> th.Shot:
+    return th.Shot(frames=48, fps=24, dt=1e-3, dense_strands=20000, hair_colour=(0.30, 0.18, 0.09),
                 view=(0.13, 0.97, 0.19))

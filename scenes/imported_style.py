@@ -9,7 +9,6 @@ out/assets/) so nothing is downloaded; point STYLE at your own file to animate i
 from pathlib import Path
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 STYLE = Path("out/assets/bob.hair")
 MOTION = th.Nod(amplitude_deg=20, frequency_hz=1.0, pivot=(0.0, -0.01, -0.10), ramp_s=0.3)
@@ -47,5 +46,5 @@ def interpolator(scene, simulator):
     return interp
 
 
-def shot() -> Shot:
-    return Shot(frames=48, fps=24, hair_colour=(0.45, 0.28, 0.12), view=(0.47, 0.87, 0.13))
+def shot() -> th.Shot:
+    return th.Shot(frames=48, fps=24, hair_colour=(0.45, 0.28, 0.12), view=(0.47, 0.87, 0.13))

@@ -11,7 +11,6 @@ guide standing for a few hundred fibres, not a single fibre), so the heap is vis
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 N_CURLS = 16
 CONTACT_RADIUS = 5e-4  # [m] a lock's half-thickness
@@ -48,6 +47,6 @@ def build() -> th.Scene:
         strand_contact=th.StrandContact(radius=CONTACT_RADIUS, friction=0.3))
 
 
-def shot() -> Shot:
-    return Shot(frames=48, fps=24, eye=(0.12, -0.12, 0.09), target=(0.0, 0.0, 0.01), fov_y=40.0,
+def shot() -> th.Shot:
+    return th.Shot(frames=48, fps=24, eye=(0.12, -0.12, 0.09), target=(0.0, 0.0, 0.01), fov_y=40.0,
                 hair_colour=(0.35, 0.2, 0.1), hair_width=1e-3)

@@ -12,7 +12,6 @@ the head like the roots and the tail swings below it.
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 TIE = np.array([0.0, -0.105, -0.07])  # [m] head coordinates: a low tie, behind the occiput
 RING = 0.006  # [m] radius of the gathered bundle at the tie
@@ -103,6 +102,6 @@ def setup(scene, simulator) -> None:
     simulator.add_pin(np.arange(simulator.n_strands), tie_nodes, attach="head")
 
 
-def shot() -> Shot:
-    return Shot(frames=96, fps=24, dense_strands=12000, hair_colour=(0.2, 0.12, 0.06),
+def shot() -> th.Shot:
+    return th.Shot(frames=96, fps=24, dense_strands=12000, hair_colour=(0.2, 0.12, 0.06),
                 view=(0.73, -0.65, 0.20))

@@ -12,7 +12,6 @@ Twist "none": for round hair it is the robust choice with a sag-free rest shape 
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 PER_BLOCK = 6  # strands per (row, half)
 RAIL_DEPTH = 0.08  # [m] the roots of a block spread along y
@@ -53,6 +52,6 @@ def build() -> th.Scene:
     return th.Scene(groom=groom, material=material, drag=5e-4, twist="none")
 
 
-def shot() -> Shot:
-    return Shot(frames=72, fps=24, hair_width=6e-4, hair_colour=(0.25, 0.15, 0.08),
+def shot() -> th.Shot:
+    return th.Shot(frames=72, fps=24, hair_width=6e-4, hair_colour=(0.25, 0.15, 0.08),
                 view=(0.00, -1.00, 0.01), fov_y=30.0, reach=0.1)

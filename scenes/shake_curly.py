@@ -4,7 +4,6 @@
 """
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:
@@ -18,6 +17,6 @@ def build() -> th.Scene:
         drag=5e-4)
 
 
-def shot() -> Shot:
-    return Shot(frames=72, fps=24, dt=1e-3, dense_strands=20000, hair_colour=(0.12, 0.07, 0.04),
+def shot() -> th.Shot:
+    return th.Shot(frames=72, fps=24, dt=1e-3, dense_strands=20000, hair_colour=(0.12, 0.07, 0.04),
                 view=(0.13, 0.97, 0.19))

@@ -6,7 +6,6 @@
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 
 def hand(t):
@@ -32,6 +31,6 @@ def build() -> th.Scene:
         drag=5e-4)
 
 
-def shot() -> Shot:
-    return Shot(frames=72, fps=24, dense_strands=15000, hair_colour=(0.2, 0.12, 0.06),
+def shot() -> th.Shot:
+    return th.Shot(frames=72, fps=24, dense_strands=15000, hair_colour=(0.2, 0.12, 0.06),
                 view=(0.57, -0.76, 0.32))

@@ -4,7 +4,6 @@
 """
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:
@@ -18,6 +17,6 @@ def build() -> th.Scene:
         drag=5e-4)
 
 
-def shot() -> Shot:
-    return Shot(frames=96, fps=24, dense_strands=20000, hair_colour=(0.35, 0.2, 0.1),
+def shot() -> th.Shot:
+    return th.Shot(frames=96, fps=24, dense_strands=20000, hair_colour=(0.35, 0.2, 0.1),
                 view=(0.00, 0.99, 0.14))

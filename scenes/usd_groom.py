@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 GROOM = Path("out/assets/groom.usdc")
 MOTION = th.Turntable(period_s=4.0)
@@ -53,8 +52,8 @@ def interpolator(scene, simulator):
     return interp
 
 
-def shot() -> Shot:
+def shot() -> th.Shot:
     _, curves = _selection()
     colour = tuple(float(c) for c in np.nanmean(curves.colors, axis=0)) if curves.colors is not None else (0.4, 0.24, 0.11)
-    return Shot(frames=48, fps=24, hair_colour=colour, view=(0.47, 0.87, 0.13),
+    return th.Shot(frames=48, fps=24, hair_colour=colour, view=(0.47, 0.87, 0.13),
                 usd="both")

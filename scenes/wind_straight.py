@@ -4,7 +4,6 @@
 """
 
 import taichi_hair as th
-from taichi_hair.app.runner import Shot
 
 
 def build() -> th.Scene:
@@ -18,6 +17,6 @@ def build() -> th.Scene:
         drag=5e-4)
 
 
-def shot() -> Shot:
-    return Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
+def shot() -> th.Shot:
+    return th.Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
                 view=(0.00, 0.99, 0.16), reach=0.6)

@@ -7,36 +7,12 @@ Public API (see README.md):
     th.Simulator(groom, material, twist="quasistatic"), th.Simulator.from_scene(scene, dt=...)
     th.sag_free(groom, material, gravity, head) -> (groom, SagFreeReport)
     th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
+    th.Shot(frames=..., fps=..., dt=..., width=..., height=..., dense_strands=...): how a scene script is filmed
 """
 
-import contextlib as _contextlib
-import os as _os
-import sys as _sys
+from . import runtime as _runtime  # first: imports Taichi with its banner off (th.init prints it on stderr)
 
-
-def _import_taichi_quietly():
-    """Import Taichi with its banner on stderr: stdout belongs to the caller's data (the CLI's
-    --json documents). The banner is switched off for the import and printed to stderr after it;
-    sys.stdout itself is left alone while Taichi imports (Taichi would take a replaced stdout
-    for a notebook and wrap every kernel call)."""
-    if "taichi" in _sys.modules:
-        return
-    wanted = _os.environ.get("ENABLE_TAICHI_HEADER_PRINT")
-    _os.environ["ENABLE_TAICHI_HEADER_PRINT"] = "0"
-    try:
-        from taichi._lib import utils
-    finally:
-        if wanted is None:
-            del _os.environ["ENABLE_TAICHI_HEADER_PRINT"]
-        else:
-            _os.environ["ENABLE_TAICHI_HEADER_PRINT"] = wanted
-    if (wanted or "True").lower() not in ("false", "0", "f"):
-        with _contextlib.redirect_stdout(_sys.stderr):
-            utils._print_taichi_header()
-
-
-_import_taichi_quietly()
-
+from .app.runner import Shot
 from .world.colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .world.forces import Grab, Hand, Wind
 from .rods.groom import Groom
@@ -56,7 +32,7 @@ from .solver.simulator import Simulator
 from .solver.stability import SimulationDiverged
 from .hair.usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
 
-__all__ = ["init", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
+__all__ = ["init", "Shot", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
            "HairInteraction", "StrandContact", "Still", "Nod", "Shake", "Turntable", "Jerk", "Keyframes", "compose",
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",

@@ -2,12 +2,51 @@
 
 `init` wraps `ti.init`. Fields and kernels use Taichi's `float`, which resolves to the
 precision chosen here, so one call decides float32 or float64 for the whole process.
+
+Importing Taichi prints its banner ("[Taichi] version ...") on stdout, which belongs to the
+caller's data (the CLI's --json documents) and which `--help` should not carry: this module
+imports Taichi with the banner off and `init` prints it on stderr when it starts Taichi, unless
+ENABLE_TAICHI_HEADER_PRINT (Taichi's own setting) switches it off.
 """
 
 import contextlib
+import os
 import sys
 
-import taichi as ti
+_banner = {"wanted": True, "printed": False}
+
+
+def import_taichi_quietly() -> None:
+    """Import Taichi with its banner off; sys.stdout is left alone while Taichi imports (Taichi
+    would take a replaced stdout for a notebook and wrap every kernel call)."""
+    if "taichi" in sys.modules:
+        _banner["printed"] = True  # imported before us: Taichi printed it already
+        return
+    wanted = os.environ.get("ENABLE_TAICHI_HEADER_PRINT")
+    os.environ["ENABLE_TAICHI_HEADER_PRINT"] = "0"
+    try:
+        import taichi  # noqa: F401
+    finally:
+        if wanted is None:
+            del os.environ["ENABLE_TAICHI_HEADER_PRINT"]
+        else:
+            os.environ["ENABLE_TAICHI_HEADER_PRINT"] = wanted
+    _banner["wanted"] = (wanted or "True").lower() not in ("false", "0", "f")
+
+
+def print_banner() -> None:
+    """Taichi's banner on stderr, the first time only."""
+    if _banner["printed"] or not _banner["wanted"]:
+        return
+    _banner["printed"] = True
+    from taichi._lib import utils
+    with contextlib.redirect_stdout(sys.stderr):
+        utils._print_taichi_header()
+
+
+import_taichi_quietly()
+
+import taichi as ti  # noqa: E402  (after the quiet import above)
 
 _ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
 _PRECISIONS = {"float32": ti.f32, "float64": ti.f64}
@@ -50,6 +89,7 @@ def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, 
         # fast_math rewrites float64 sqrt as float32 on CUDA
         options["fast_math"] = False
     options.update(kwargs)
+    print_banner()
     with contextlib.redirect_stdout(sys.stderr):  # "[Taichi] Starting on arch=...": not data
         ti.init(**options)
     _state["arch"], _state["precision"] = arch, precision

@@ -61,9 +61,10 @@ def perturbed(x, scale, seed, keep_root=True):
     return out
 
 
-def run_cli(args, cwd, timeout=900):
-    """`python -m taichi_hair run ARGS --no-progress` in cwd; the CompletedProcess (text)."""
-    return subprocess.run([sys.executable, "-m", "taichi_hair", "run", *args, "--no-progress"],
+def run_cli(args, cwd, timeout=900, python_options=()):
+    """`python [python_options] -m taichi_hair run ARGS --no-progress` in cwd; the
+    CompletedProcess (text)."""
+    return subprocess.run([sys.executable, *python_options, "-m", "taichi_hair", "run", *args, "--no-progress"],
                           cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 

@@ -1,5 +1,9 @@
 """Discrete elastic rod: energy, exact forces (holonomy included), frames and twist updates."""
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -221,3 +225,89 @@ def test_kmoch_keeps_elliptic_curls_bending_about_the_soft_axis():
     assert at_zero > 0
     assert with_kmoch <= at_zero
     assert with_kmoch < 0.1 * at_zero
+
+
+# ---- rotation_scalars' series branch against its closed form, to 50 digits ----------------------
+ROTATION_SCALARS_SCRIPT = """
+import json, sys
+import taichi as ti
+import taichi_hair as th
+th.init(arch="cpu", precision=sys.argv[1])
+from taichi_hair.rods.rod import SERIES_BELOW, rotation_scalars
+
+@ti.kernel
+def scalars(args: ti.types.ndarray(dtype=ti.f64, ndim=2), out: ti.types.ndarray(dtype=ti.f64, ndim=2)):
+    for k in range(args.shape[0]):
+        G, P, Q, Z = rotation_scalars(args[k, 0], args[k, 1], args[k, 2], ti.static(SERIES_BELOW["float64"]))
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = G, P, Q, Z
+"""
+
+
+def closed_form_scalars(a2, sn, c):
+    """(G, P, Q, Z) of rods/rod.py rotation_scalars from their closed forms, in 60-digit decimal
+    arithmetic (atan by its Taylor series, x = rho / c < 1): free of the cancellation that makes
+    the code switch to its series, and of the code's coefficient tables."""
+    from decimal import Decimal, getcontext
+    getcontext().prec = 60
+    a2, sn, c = Decimal(a2), Decimal(sn), Decimal(c)
+    rho2 = a2 + sn * sn
+    rho = rho2.sqrt()
+    x = rho / c
+    atan, term, n = Decimal(0), x, 0
+    while abs(term) > Decimal(10) ** -58:
+        term = x ** (2 * n + 1) / (2 * n + 1) * (-1 if n % 2 else 1)
+        atan += term
+        n += 1
+    G = 2 * atan / rho
+    P = (1 - G * c / 2) / rho2
+    Q = (c / (rho2 + c * c) - G / 2) / rho2
+    Z = (G / 4 - 3 * P * c / 2) / rho2
+    return [float(v) for v in (G, P, Q, Z)]
+
+
+def rotation_scalar_cases(limit):
+    """(a2, sn, c) with x = rho / c from 1e-4 to just under `limit` (the series branch)."""
+    cases = []
+    for x in (1e-4, 1e-2, 0.05, 0.5 * limit, 0.99 * limit):
+        for c in (1.0, 0.8):
+            for share in (0.0, 0.5, 1.0):  # of rho^2 in the bend (a2) vs the twist (sn^2)
+                rho2 = (x * c) ** 2
+                sn = np.sqrt((1 - share) * rho2)
+                cases.append((share * rho2, float(sn), c))
+    return np.array(cases)
+
+
+def _scalar_errors(values, cases):
+    exact = np.array([closed_form_scalars(*row) for row in cases])
+    return np.abs(values - exact) / np.abs(exact)
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_rotation_scalars_series_branch_matches_closed_form_in_float64(precision, tmp_path):
+    """rotation_scalars called with float64 arguments (as the implicit step calls it in both
+    precisions) agrees with the closed forms to float64 rounding across its series branch.
+    In a float32 build horner started from a literal 0.0 and added literal coefficients, both
+    float32, and the branch switched at float32's threshold: the series came out with float32's
+    error (measured 5e-8 relative) and Taichi warned "Assign may lose precision". Run in a
+    subprocess in each precision; the compile log must not mention precision either."""
+    from taichi_hair.rods.rod import SERIES_BELOW
+    cases = rotation_scalar_cases(SERIES_BELOW["float64"])
+    script = ROTATION_SCALARS_SCRIPT + f"""
+import json
+import subprocess
+import sys
+
+import numpy as np
+args = np.array({cases.tolist()!r})
+out = np.zeros((len(args), 4))
+scalars(args, out)
+print(json.dumps(out.tolist()))
+"""
+    path = tmp_path / "scalars.py"  # a file: Taichi reads a kernel's source
+    path.write_text(script)
+    done = subprocess.run([sys.executable, str(path), precision], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "warning" not in done.stderr.lower(), done.stderr[-2000:]
+    errors = _scalar_errors(np.array(json.loads(done.stdout.strip().splitlines()[-1])), cases)
+    print(f"\n{precision} build, float64 call: largest relative error of (G, P, Q, Z) {errors.max(axis=0)}")
+    assert errors.max() < 1e-13

@@ -12,7 +12,6 @@ import statistics
 import subprocess
 import sys
 import time
-import warnings
 from contextlib import contextmanager
 
 import numpy as np
@@ -48,9 +47,7 @@ def bench_case(n_strands: int, repeats: int, stage_steps: int, twist: str = "qua
 
     groom = bench_groom(n_strands)
     material = Material(youngs_modulus=3e9, shear_modulus=1e9, radius=40e-6, density=1300.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        sim = Simulator(groom, material, dt=1e-3, twist=twist, integrator=integrator)
+    sim = Simulator(groom, material, dt=1e-3, twist=twist, integrator=integrator)
     steps = int(round(FRAME / sim.dt))
     compile_s, frame_ms = _time_frames(sim, repeats)
     stages = stage_breakdown(sim, stage_steps)
@@ -129,9 +126,7 @@ def bench_full_head(n_guides: int, repeats: int, integrators=("explicit",)) -> d
         for style, groom, material, interaction in hairs:
             scene = Scene(groom=groom, head=head, material=material, motion=Shake(amplitude_deg=30, frequency_hz=1),
                           hair_interaction=interaction, integrator=integrator)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                sim = Simulator.from_scene(scene, dt=1e-3)
+            sim = Simulator.from_scene(scene, dt=1e-3)
             compile_s, frame_ms = _time_frames(sim, repeats)
             rows.append({"guides": n_guides, "integrator": integrator, "style": style,
                          "hair_interaction": interaction is not None,
@@ -200,7 +195,15 @@ def main(args) -> int:
             raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
                              f"pip install 'taichi_hair[bench]'") from None
         return bench_main(args)
-    strands = args.strands
+    apply_preset(args)
+    strands = args.strands if isinstance(args.strands, list) else [int(s) for s in args.strands.split(",")]
+    if args.against is not None:
+        from .history import bench_args_of, compare, format_comparison
+        args.strands = strands
+        result = compare(args.against, bench_args_of(args), args.rounds,
+                         progress=lambda line: print(line, file=sys.stderr, flush=True))
+        print(json.dumps(result, indent=2) if args.json else format_comparison(result))
+        return 0
     integrators = ("explicit", "implicit") if args.integrator == "both" else (args.integrator,)
     precisions = ["float32", "float64"] if args.precision == "both" else [args.precision]
     results = []
@@ -224,23 +227,54 @@ def main(args) -> int:
     return 0
 
 
+# the table's size: the quick one by default (a couple of minutes on 2 cores, the implicit
+# step's long first compile left out), --full for the whole table; an option given wins
+QUICK = {"strands": "1,100,1000", "repeats": 3, "stage_steps": 3, "integrator": "explicit", "head_guides": 200,
+         "dense": 20_000}
+FULL = {"strands": "1,100,1000,10000", "repeats": 5, "stage_steps": 5, "integrator": "both", "head_guides": 1000,
+        "dense": 100_000}
+
+
+def apply_preset(args) -> None:
+    """Fill the table options not given on the command line from QUICK, or FULL with --full."""
+    for name, value in (FULL if args.full else QUICK).items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+
+
+def _preset(name) -> str:
+    return f"default: {QUICK[name]}, with --full {FULL[name]}"
+
+
 def add_parser(sub):
-    p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame)")
-    p.add_argument("--arch", default="cpu", help="cpu (default) or cuda where a GPU exists")
-    p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"])
-    p.add_argument("--strands", type=cli_int_list("--strands", 1, 1_000_000), default="1,100,1000,10000",
-                   help="comma-separated guide counts")
-    p.add_argument("--repeats", type=cli_int("--repeats", 1, 1000), default=5, help="timed frames per case (median)")
-    p.add_argument("--stage-steps", type=cli_int("--stage-steps", 1, 10_000), default=5,
-                   help="steps timed stage by stage")
-    p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
-    p.add_argument("--integrator", default="both", choices=["explicit", "implicit", "both"],
-                   help="rows for each integrator (default both)")
-    p.add_argument("--head-guides", type=cli_int("--head-guides", 0, 100_000), default=1000,
-                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it")
-    p.add_argument("--dense", type=cli_int("--dense", 0, 10_000_000), default=100_000,
-                   help="dense strands interpolated per frame on the interpolation row; 0 skips it")
+    p = sub.add_parser("bench", help="simulation throughput table (strand-node-steps/s, ms per frame); "
+                                     "quick by default, --full for the whole table")
+    p.add_argument("--full", action="store_true",
+                   help="the whole table: 10000 guides, both integrators (the implicit step compiles for "
+                        "minutes on a cold cache), 1000 head guides, 100000 dense strands")
+    p.add_argument("--arch", default="cpu", help="cpu, or cuda where a GPU exists")
+    p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"], help="float type")
+    p.add_argument("--strands", type=cli_int_list("--strands", 1, 1_000_000), default=None,
+                   help=f"comma-separated guide counts ({_preset('strands')})")
+    p.add_argument("--repeats", type=cli_int("--repeats", 1, 1000), default=None,
+                   help=f"timed frames per case, median ({_preset('repeats')})")
+    p.add_argument("--stage-steps", type=cli_int("--stage-steps", 1, 10_000), default=None,
+                   help=f"steps timed stage by stage ({_preset('stage_steps')})")
+    p.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"], help="twist update")
+    p.add_argument("--integrator", default=None, choices=["explicit", "implicit", "both"],
+                   help=f"rows for each integrator ({_preset('integrator')})")
+    p.add_argument("--head-guides", type=cli_int("--head-guides", 0, 100_000), default=None,
+                   help="guides on the full-head row (head collision, with and without hair-hair); 0 skips it "
+                        f"({_preset('head_guides')})")
+    p.add_argument("--dense", type=cli_int("--dense", 0, 10_000_000), default=None,
+                   help="dense strands interpolated per frame on the interpolation row; 0 skips it "
+                        f"({_preset('dense')})")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--against", default=None, metavar="REV",
+                   help="also run the same table from commit REV (a temporary git worktree), alternating "
+                        "round by round, and print both with their ratio (default: this tree alone)")
+    p.add_argument("--rounds", type=cli_int("--rounds", 1, 100), default=3,
+                   help="alternating rounds of each tree with --against (medians over them)")
     cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
                               "columns also pip install \"cosseratbench[pyelastica,mujoco]\" "
                               "\"mujoco<4\")")

@@ -6,6 +6,7 @@ import sys
 import numpy as np
 
 from . import bench
+from . import doctor
 from . import reports
 from . import runner
 from . import sweep
@@ -48,26 +49,51 @@ def _demo(args) -> int:
     return 0
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """Every option's help ends with its default ("(default: X)"), unless the help already says
+    it; flags (no value) are off unless given."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or action.nargs == 0 or action.required
+                or action.default is argparse.SUPPRESS):
+            return text
+        if "default" in text:
+            return text
+        return f"{text} (default: %(default)s)".lstrip()
+
+
+class Parser(one_line_parser_class()):
+    """argparse's parser with one-line errors and DefaultsHelpFormatter, for every subcommand too."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = one_line_parser_class()(prog="taichi-hair", description=__doc__)
+    parser = Parser(prog="taichi-hair", description=__doc__)
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of an error (accepted anywhere on the line)")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     demo = sub.add_parser("demo", help="bend a curly strand and print its energy and forces")
-    demo.add_argument("--arch", default="cpu")
-    demo.add_argument("--precision", default="float64", choices=["float32", "float64"])
-    demo.add_argument("--nodes", type=cli_int("--nodes", 3, 10_000), default=16)
+    demo.add_argument("--arch", default="cpu", help="Taichi arch: cpu, cuda, gpu, vulkan or metal")
+    demo.add_argument("--precision", default="float64", choices=["float32", "float64"], help="float type")
+    demo.add_argument("--nodes", type=cli_int("--nodes", 3, 10_000), default=16, help="nodes of the strand")
     demo.add_argument("--length", type=cli_real("--length", 0.0, 10.0, unit="m"), default=0.15,
                       help="strand length [m]")
     demo.add_argument("--curl-radius", type=cli_real("--curl-radius", 0.0, 1.0, unit="m"), default=0.01,
                       help="helix radius [m]")
     demo.add_argument("--curl-pitch", type=cli_real("--curl-pitch", 0.0, 1.0, low_open=False, unit="m"),
                       default=0.02, help="helix pitch [m per turn]")
-    demo.add_argument("--ellipticity", type=cli_real("--ellipticity", 1.0, 10.0, low_open=False), default=1.5)
+    demo.add_argument("--ellipticity", type=cli_real("--ellipticity", 1.0, 10.0, low_open=False), default=1.5,
+                      help="cross-section ellipticity (1: round)")
     demo.add_argument("--bend", type=cli_real("--bend", -360.0, 360.0, low_open=False, unit="degrees"),
                       default=30.0, help="bend at the tip [degrees]")
-    demo.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"])
+    demo.add_argument("--twist", default="quasistatic", choices=["kmoch", "quasistatic", "none"],
+                      help="twist update")
     demo.set_defaults(func=_demo)
+    doctor.add_parser(sub)
     bench.add_parser(sub)
     runner.add_parser(sub)
     sweep.add_parser(sub)

@@ -46,9 +46,11 @@ def add_arguments(parser) -> None:
     from ..validation import cli_int
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--workers", type=cli_int("--workers", 1, 256), default=None, metavar="N",
-                       help="spread the work over a local Dask cluster of N worker processes (extra 'cluster')")
+                       help="spread the work over a local Dask cluster of N worker processes (extra 'cluster'; "
+                            "default: no cluster, this process)")
     group.add_argument("--scheduler", default=None, metavar="ADDR",
-                       help="spread the work over the Dask cluster at ADDR, e.g. tcp://HOST:8786 (extra 'cluster')")
+                       help="spread the work over the Dask cluster at ADDR, e.g. tcp://HOST:8786 (extra 'cluster'; "
+                            "default: none)")
 
 
 def wanted(args) -> bool:
@@ -193,8 +195,7 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
         written.append(result["frame"])
         bar.update(1)
 
-    with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
-        bar.update(done - len(pending))
+    with ProgressBar(total, f"{Path(script).stem}", enabled=progress, done=done - len(pending)) as bar:
         for frame in pending:
             submit(frame, *load_guides(out, frame))
         for frame in range(done, total):

@@ -59,7 +59,6 @@ solver, free rods, clamped tips and rod contact.
 from __future__ import annotations
 
 import math
-import warnings
 from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
@@ -372,9 +371,7 @@ class TaichiHairSolver:
         if contact:
             options["strand_contact"] = th.StrandContact(
                 friction=max(r.friction for r in scenario.rods), self_contact=scenario.self_contact)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
-            sim = th.Simulator(groom, materials, **options)
+        sim = th.Simulator(groom, materials, **options)
         if self.extensible and any(s.rod.rest_arc_length is not None for s in strands):
             x = sim.positions()  # pre-stretched rods start where the scenario puts them
             for k, s in enumerate(strands):

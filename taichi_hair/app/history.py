@@ -109,6 +109,7 @@ def format_comparison(result: dict) -> str:
 
 def bench_args_of(args) -> list:
     """The bench options every commit understands, from parsed `taichi-hair bench` arguments."""
-    return ["--strands", str(args.strands), "--repeats", str(args.repeats), "--integrator", args.integrator,
+    strands = args.strands if isinstance(args.strands, str) else ",".join(map(str, args.strands))
+    return ["--strands", strands, "--repeats", str(args.repeats), "--integrator", args.integrator,
             "--precision", args.precision, "--head-guides", str(args.head_guides), "--dense", "0",
             "--stage-steps", "1"]

@@ -10,6 +10,7 @@ import importlib.util
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -304,13 +305,14 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
     done, pending = _resume_point(out, sim, shot, total) if resume else (0, [])
     usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     times = {"simulation": [], "interpolation": [], "rendering": []}
-    with ProgressBar(total, f"{Path(script).stem}", enabled=progress) as bar:
-        bar.update(done - len(pending))
+    with ProgressBar(total, f"{Path(script).stem}", enabled=progress, done=done - len(pending)) as bar:
         for frame in pending:
             guides, pose = load_guides(out, frame)
             render_frame(frame_path(out, frame), frame, guides, pose, run, times)
             remove_guides(out, frame)
             bar.update(1)
+            if not progress:
+                log_frame(frame, total, (frame + 1) / shot.fps, times, simulated=False)
         for frame in range(done, total):
             guides, pose = simulate_frame(sim, shot, times)
             hair = render_frame(frame_path(out, frame), frame, guides, pose, run, times)
@@ -320,11 +322,23 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
                 _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose)
             _checkpoint(out, sim, shot, frame + 1)
             bar.update(1)
+            if not progress:
+                log_frame(frame, total, sim.time, times)
     video = write_video(out, script, shot, total)
     summary = _summary(script, total, done, times, video, sim)
     if usd_writer is not None:
         summary["usd"] = str(usd_writer.path)
     return summary
+
+
+def log_frame(frame, total, t, times, simulated=True, stream=None) -> None:
+    """One line on stderr for a finished frame (the progress report of --no-progress): frame
+    number, simulated time [s] at its end and the wall time [ms] of its simulation,
+    interpolation and rendering (a frame a cluster run simulated: rendered only)."""
+    ms = {k: 1e3 * v[-1] if v else 0.0 for k, v in times.items()}
+    sim = f"sim {ms['simulation']:8.1f} ms" if simulated else "sim (cluster)"
+    print(f"frame {frame + 1:>{len(str(total))}}/{total}  t = {t:.4f} s  {sim}  interpolation "
+          f"{ms['interpolation']:7.1f} ms  render {ms['rendering']:7.1f} ms", file=stream or sys.stderr, flush=True)
 
 
 def frame_path(out, frame) -> Path:
@@ -492,7 +506,8 @@ def format_summary(summary: dict) -> str:
     usd = f" + {summary['usd']}" if summary.get("usd") else ""
     if "workers" in summary:
         usd += f" ({summary['frames_rendered']} frames rendered on {summary['workers']} Dask workers)"
-    return (f"{summary['scene']}: {summary['frames']} frames (resumed from {summary['resumed_from']}), "
+    resumed = f" (resumed from {summary['resumed_from']})" if summary["resumed_from"] else ""
+    return (f"{summary['scene']}: {summary['frames']} frames{resumed}, "
             f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}{usd}\n"
             f"median ms per frame: simulation {ms['simulation']:.1f}, interpolation "
             f"{ms['interpolation']:.1f}, rendering {ms['rendering']:.1f}")
@@ -501,30 +516,38 @@ def format_summary(summary: dict) -> str:
 def add_parser(sub):
     p = sub.add_parser("run", help="simulate a scene script and render frames, an MP4 and checkpoints")
     p.add_argument("scene", help="path of a scene script, e.g. scenes/shake_curly.py")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", default=None, help="output directory (default: out/<scene name>, e.g. out/shake_curly)")
     p.add_argument("--frames", type=cli_int("--frames", 1, MAX_FRAMES), default=None,
                    help="frames to make (default: the scene's shot)")
     p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
     add_image_arguments(p)
     p.add_argument("--usd", nargs="?", const="usdc", default=None, choices=["usdc", "usda"],
-                   help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra)")
+                   help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra; "
+                        "default: no USD; --usd alone: usdc)")
     p.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
-                   help="override the scene's integrator (implicit: no stability bound, docs/model.md)")
+                   help="override the scene's integrator (implicit: no stability bound, docs/model.md; "
+                        "default: the scene's)")
     p.add_argument("--projection", default=None, choices=PROJECTIONS,
-                   help="override the explicit step's projection (shake: keeps an undamped swing's energy)")
+                   help="override the explicit step's projection (shake: keeps an undamped swing's energy; "
+                        "default: the scene's)")
     p.add_argument("--strain", default=None, choices=[c for c in STRAIN_CHOICES if c],
-                   help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md)")
-    p.add_argument("--no-progress", action="store_true")
+                   help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md; "
+                        "default: the scene's)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar: one line per frame on stderr (frame, simulated time, sim / "
+                        "interpolation / render ms)")
     cluster.add_arguments(p)
     p.set_defaults(func=main)
 
 
 def add_image_arguments(p) -> None:
     """--width, --height (each in [1, MAX_IMAGE_SIDE] px) and --dense (in [0, MAX_DENSE])."""
-    p.add_argument("--width", type=cli_int("--width", 1, MAX_IMAGE_SIDE), default=None)
-    p.add_argument("--height", type=cli_int("--height", 1, MAX_IMAGE_SIDE), default=None)
+    p.add_argument("--width", type=cli_int("--width", 1, MAX_IMAGE_SIDE), default=None,
+                   help="image width [px] (default: the scene's shot, else 640)")
+    p.add_argument("--height", type=cli_int("--height", 1, MAX_IMAGE_SIDE), default=None,
+                   help="image height [px] (default: the scene's shot, else 480)")
     p.add_argument("--dense", type=cli_int("--dense", 0, MAX_DENSE), default=None,
-                   help="dense strands (0: draw the guides)")
+                   help="dense strands, 0 draws the guides (default: the scene's shot)")
 
 
 def shot_overrides(args) -> dict:
@@ -533,7 +556,14 @@ def shot_overrides(args) -> dict:
                               ("dense_strands", args.dense)) if v is not None}
 
 
+def default_out(scene) -> Path:
+    """The output folder when --out is not given: out/<scene script's name>."""
+    return Path("out") / Path(scene).stem
+
+
 def main(args) -> int:
+    if args.out is None:
+        args.out = str(default_out(args.scene))
     options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
                    overrides=shot_overrides(args),
                    settings={k: v for k, v in (("integrator", args.integrator), ("projection", args.projection),

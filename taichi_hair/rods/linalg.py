@@ -110,12 +110,12 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
         l1 = ti.types.matrix(5, 5, ti.f64)(0.0)
         l2 = ti.types.matrix(5, 5, ti.f64)(0.0)
         if i >= 2:
-            l2 = a2 @ blocks[s, i - 2, 0]
-            a1 -= a2 @ blocks[s, i - 1, 1].transpose()  # L_{i,i-2} D_{i-2} = A_{i,i-2}
-            d -= l2 @ a2.transpose()
+            l2 = product(a2, blocks[s, i - 2, 0], False, False)
+            a1 -= product(a2, blocks[s, i - 1, 1], False, True)  # L_{i,i-2} D_{i-2} = A_{i,i-2}
+            d -= product(l2, a2, False, True)
         if i >= 1:
-            l1 = a1 @ blocks[s, i - 1, 0]
-            d -= l1 @ a1.transpose()
+            l1 = product(a1, blocks[s, i - 1, 0], False, False)
+            d -= product(l1, a1, False, True)
         # symmetric by construction, but rounding leaves d and its inverse slightly
         # asymmetric, and that asymmetry grows along a long stiff chain in this one-sided
         # recurrence (L D L^T formed from the lower blocks only): 201 nodes at 1 mm, bent by
@@ -142,3 +142,24 @@ def block_pentadiagonal_solve(s, n, blocks: ti.template(), rhs: ti.template()):
             y -= blocks[s, i + 2, 2].transpose() @ rhs[s, i + 2]
         rhs[s, i] = y
     return failed
+
+
+@ti.func
+def product(a, b, ta: ti.template(), tb: ti.template()):
+    """a @ b, with a (ta) or b (tb) transposed, float64, summed in run-time loops. Taichi's `@`
+    unrolls a product into scalar statements, and its compiler's passes grow faster than the
+    statements: the implicit step's 5x5 block products, unrolled, made its kernel compile for
+    minutes. Loops of 5 cost no more to run (LLVM unrolls what pays)."""
+    rows = ti.static(a.m if ta else a.n)
+    inner = ti.static(a.n if ta else a.m)
+    cols = ti.static(b.n if tb else b.m)
+    out = ti.Matrix.zero(ti.f64, rows, cols)
+    for r in range(rows):
+        for c in range(cols):
+            acc = ti.f64(0.0)
+            for k in range(inner):
+                x = a[k, r] if ti.static(ta) else a[r, k]
+                y = b[c, k] if ti.static(tb) else b[k, c]
+                acc += x * y
+            out[r, c] = acc
+    return out

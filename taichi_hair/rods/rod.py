@@ -40,9 +40,11 @@ SERIES_BELOW = {"float64": 0.1, "float32": 0.3}
 #   P c^2 = (1 - G c / 2) c^2 / rho^2 = sum_n (-1)^n x^2n / (2n + 3)
 #   Q c^3 = (c / (rho^2 + c^2) - G / 2) c^3 / rho^2 = sum_{n>=1} (-1)^n 2n x^(2n-2) / (2n + 1)
 #   Z c^3 = (G / 4 - 3 P c / 2) c^3 / rho^2 = sum_{n>=1} (-1)^(n+1) 2n x^(2n-2) / ((2n + 1)(2n + 3))
-P_SERIES = tuple((-1) ** n / (2 * n + 3) for n in reversed(range(8)))
-Q_SERIES = tuple((-1) ** n * 2 * n / (2 * n + 1) for n in reversed(range(1, 9)))
-Z_SERIES = tuple((-1) ** (n + 1) * 2 * n / ((2 * n + 1) * (2 * n + 3)) for n in reversed(range(1, 9)))
+# as exact (numerator, denominator) integer pairs: horner divides them in its argument's float
+# type (a float literal in a kernel takes the default type: float32 in a float32 build)
+P_SERIES = tuple(((-1) ** n, 2 * n + 3) for n in reversed(range(8)))
+Q_SERIES = tuple(((-1) ** n * 2 * n, 2 * n + 1) for n in reversed(range(1, 9)))
+Z_SERIES = tuple(((-1) ** (n + 1) * 2 * n, (2 * n + 1) * (2 * n + 3)) for n in reversed(range(1, 9)))
 
 
 @ti.func
@@ -63,24 +65,30 @@ def bend_terms(kbi, d1, d2, wbar, ei1, ei2, inv_2l):
 
 @ti.func
 def horner(coefficients: ti.template(), x2):
-    total = 0.0
-    for c in ti.static(coefficients):
-        total = total * x2 + c
+    """sum_k (num_k / den_k) x2^(K-1-k) for coefficients ((num_k, den_k), ...) integer pairs,
+    highest power first, in x2's float type (float64 inside the implicit step of a float32 build,
+    where float literals, 0.0 or 1/3, would be float32 and round the sum)."""
+    one = 1 + 0 * x2  # x2's type
+    total = 0 * x2
+    for num, den in ti.static(coefficients):
+        total = total * x2 + num / (den * one)
     return total
 
 
 @ti.func
-def rotation_scalars(a2, sn, c):
+def rotation_scalars(a2, sn, c, series_below: ti.template()):
     """The turn's rotation vector is w = G (k1/2, k2/2, sn) (rotation_node_terms) with
     rho^2 = a2 + sn^2 = |q_v|^2, psi = 2 atan2(rho, c) its angle and G = psi / rho. Returns
     (G, P, Q, Z): P = (1 - G c/2) / rho^2 (so dG/dm = sn P), Q = dG/d(rho^2) at fixed c (so
-    dG/dk = Q k / 2), Z = (G/4 - 3 P c/2) / rho^2 (so dP/dm = sn Z); series below SERIES_BELOW."""
+    dG/dk = Q k / 2), Z = (G/4 - 3 P c/2) / rho^2 (so dP/dm = sn Z); series below x = series_below, the
+    SERIES_BELOW entry of the arguments' float type (the implicit step calls this in float64 in
+    both precisions)."""
     rho2 = a2 + sn * sn
     G = 0.0 * rho2  # of the arguments' type (the implicit step calls this in float64)
     P = 0.0 * rho2
     Q = 0.0 * rho2
     Z = 0.0 * rho2
-    limit = ti.static(SERIES_BELOW[precision()])
+    limit = ti.static(series_below)
     if c > 0.0 and rho2 < limit * limit * c * c:
         x2 = rho2 / (c * c)
         P = horner(P_SERIES, x2) / (c * c)
@@ -117,7 +125,7 @@ def rotation_node_terms(kbi, mid1, mid2, turn, wbar, k, inv_l):
     c = ti.cos(0.5 * turn)
     sn = ti.sin(0.5 * turn)
     kv = vec2(kbi.dot(mid1), kbi.dot(mid2))
-    G, P, Q, Z = rotation_scalars(0.25 * kv.dot(kv), sn, c)
+    G, P, Q, Z = rotation_scalars(0.25 * kv.dot(kv), sn, c, ti.static(SERIES_BELOW[precision()]))
     u = vec3(0.5 * kv.x, 0.5 * kv.y, sn)
     w = G * u
     stiff = inv_l * vec3(k.y, k.x, k.z)  # about m1 the soft EI2, about m2 the stiff EI1, GJ

@@ -211,38 +211,41 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     # the strand keeps that collider (see root_keeps_collider). One distance query per node and
     # collider, the root's included: a separate root query doubled the contact code that every
     # kernel using it compiles (twice in the implicit step's).
+    # The analytic colliders c < n_analytic, then the distance grid (fl.mesh) as c = n_analytic,
+    # in one loop: the contact and its friction (contact_with_friction, place_contact) are
+    # inlined once, not once per kind of collider. Each copy of them was a large share of the
+    # implicit step's compile time (its kernel holds this function twice).
     if ti.static(not springs):
         plan_queries(s, md.node_count[s], st)
-    for c in range(n_analytic):
-        on_head = co.params[c][3] > 0.5
-        margin = co.params[c][1]
+    for c in range(n_analytic + ti.static(1 if fl.mesh else 0)):
+        on_head = 0
+        margin = 0.0
+        friction = 0.0
+        if c < n_analytic:
+            on_head = ti.cast(co.params[c][3] > 0.5, ti.i32)
+            margin = co.params[c][1]
+            friction = co.params[c][2]
+        else:  # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
+            on_head = ti.cast(co.sdf_meta[2][0] > 0.5, ti.i32)
+            margin = co.sdf_meta[1][1]
+            friction = co.sdf_meta[1][2]
         for i in range(md.node_count[s]):
             if not queried(s, i, springs, st):
                 continue
             local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
-            d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0], local)
+            d = 0.0
+            n = vec3(0.0, 0.0, 1.0)
+            if c < n_analytic:
+                d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0], local)
+            else:
+                if ti.static(fl.mesh):
+                    d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
             note_clearance(s, i, d, margin, springs, st)  # a root held inside stays queried
             if i == 0 and d < -margin:
                 break
             if md.inv_mass[s, i] > 0.0 and d < margin:
                 place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, co.params[c][2], st), springs, md, st)
-                pushes += 1
-    if ti.static(fl.mesh):
-        # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
-        on_head = co.sdf_meta[2][0] > 0.5
-        margin = co.sdf_meta[1][1]
-        for i in range(md.node_count[s]):
-            if not queried(s, i, springs, st):
-                continue
-            local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
-            d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
-            note_clearance(s, i, d, margin, springs, st)  # a root held inside stays queried
-            if i == 0 and d < -margin:
-                break
-            if md.inv_mass[s, i] > 0.0 and d < margin:
-                place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, co.sdf_meta[1][2], st), springs, md, st)
+                                                          margin, friction, st), springs, md, st)
                 pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):

@@ -26,10 +26,10 @@ Held nodes (the root, pins) keep identity rows: the root placement and pins set 
 import taichi as ti
 
 from ..rods.arrays import edge, mat_block, point, step_displacement, vec3, vec3d, vec_block
-from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
+from ..rods.linalg import block_pentadiagonal_solve, product, thomas_solve
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.frames import material_directors
-from ..rods.rod import edge_directors, first_node, node_edges, node_turn, rotation_scalars
+from ..rods.rod import SERIES_BELOW, edge_directors, first_node, node_edges, node_turn, rotation_scalars
 from ..world.forces import grab_force, grab_stiffness
 from .collisions import head_poses, strand_collide, strand_reset_friction
 from .pins import HELD_DAMPING
@@ -140,7 +140,7 @@ def rotation_strain_jacobians(s, i, first, twist_free: ti.template(), kbi, grads
     sn = ti.sin(0.5 * turn)
     mid1, mid2 = material_directors(ti.cast(st.m1[s, i], ti.f64), ti.cast(st.m2[s, i], ti.f64), -0.5 * turn)
     kv = ti.Vector([kbi.dot(mid1), kbi.dot(mid2)], dt=ti.f64)
-    G, P, Q, Z = rotation_scalars(0.25 * kv.dot(kv), sn, c)
+    G, P, Q, Z = rotation_scalars(0.25 * kv.dot(kv), sn, c, ti.static(SERIES_BELOW["float64"]))
     u = vec3d(0.5 * kv.x, 0.5 * kv.y, sn)
     w_kv1 = 0.5 * Q * kv.x * u + vec3d(0.5 * G, 0.0, 0.0)  # dw / dk1, dk2
     w_kv2 = 0.5 * Q * kv.y * u + vec3d(0.0, 0.5 * G, 0.0)
@@ -212,7 +212,7 @@ def assemble_stiffness(s, clamp: ti.template(), twist_free: ti.template(), rotat
             for b in ti.static(range(a + 1)):
                 nb = i - 1 + b
                 if nb >= 0:
-                    st.blocks[s, i - 1 + a, a - b] += weighted.transpose() @ jac[b]
+                    st.blocks[s, i - 1 + a, a - b] += product(weighted, jac[b], True, False)
 
 
 @ti.func

@@ -58,8 +58,9 @@ def _positive(name, value, unit, upper=math.inf):
 class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
-    dt: time step [s] of `step`; substepped automatically past the stability bound (or refused
-        with strict=True). gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
+    dt: time step [s] of `step`, at most; past the explicit stability bound each step runs as
+        equal substeps within it, silently (the same work as that smaller dt; `sim.substeps`,
+        `sim.stable_dt` and `sim.stats()` say how many and why), or is refused with strict=True. gravity [m/s^2]. drag: air-drag coefficient nu [N s/m per metre of
         strand]: each node feels -nu l_i (v - u_air), l_i its Voronoi length.
     wind: the air velocity u_air: a 3-vector [m/s] or a `Wind` (gusts, turbulence); needs drag > 0.
     twist: "quasistatic" (default: Newton on dE/dtheta = 0 per strand, the energy-consistent
@@ -198,11 +199,6 @@ class Simulator:
         if self.plan.contacts:
             self._resolve_initial_contacts()
             self._tighten_bound_to_start(strict)
-        if self.substeps > 1:
-            warnings.warn(f"dt = {self.dt:.3g} s exceeds this scene's explicit stability bound "
-                          f"{self.stable_dt:.3g} s (from the stiffest material, shortest segment, drag, grab "
-                          f"springs and the starting shape): each step runs {self.substeps} substeps of "
-                          f"{self.dt / self.substeps:.3g} s", RuntimeWarning, stacklevel=2)
         self.update_frames()
         self.interaction = None if hair_interaction is None else InteractionGrid(
             hair_interaction, groom, self.model, self.state, self._head[1])
@@ -501,19 +497,29 @@ class Simulator:
         return self.root_motion is not None and count > 1
 
     def run(self, seconds: float, progress: bool = True, chunk: float = 1.0 / 60.0) -> None:
-        """Simulate `seconds` [s] in chunks of about `chunk` seconds, with a progress bar on
-        stderr. A blow-up leaves the state at the end of the last healthy chunk."""
+        """Simulate exactly `seconds` [s]: the fewest equal steps of at most dt that fill it
+        (seconds / ceil(seconds / dt), as `taichi-hair run` fits its step to a frame; dt is
+        restored after), in chunks of about `chunk` seconds, with a progress bar on stderr.
+        A blow-up leaves the state at the end of the last healthy chunk."""
         if not (is_real(seconds) and seconds >= 0 and math.isfinite(seconds)):
             raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
-        total = int(round(seconds / self.dt))
+        if seconds == 0:
+            return
+        total = max(1, math.ceil(seconds / self.dt - 1e-9))
+        dt, substeps = self.dt, self.substeps
+        self.dt = seconds / total
+        self.substeps = self._substeps(strict=False)  # dt only shrank: never more than before
         per_chunk = max(1, int(round(chunk / self.dt)))
-        with ProgressBar(total * self.dt, "simulating", enabled=progress) as bar:
-            done = 0
-            while done < total:
-                k = min(per_chunk, total - done)
-                self.step(k)
-                done += k
-                bar.update(k * self.dt)
+        try:
+            with ProgressBar(seconds, "simulating", enabled=progress) as bar:
+                done = 0
+                while done < total:
+                    k = min(per_chunk, total - done)
+                    self.step(k)
+                    done += k
+                    bar.update(k * self.dt)
+        finally:
+            self.dt, self.substeps = dt, substeps
 
     def _take_snapshot(self):
         st = self.state
