@@ -8,11 +8,32 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.solver.stability import curvature_stiffening, rest_turns
-
-from helpers import stiffest_mode_ratios
+from taichi_hair.solver.stability import curvature_stiffening, rest_turns, stiffest_mode_ratio
 
 N, DS = 13, 0.01
+
+
+def stiffest_mode_ratios(sim, x0, h=1e-7):
+    """stability.stiffest_mode_ratio of each strand of `sim` at positions x0 [S, N, 3] m (one
+    material for all), its Hessian from central differences of the elastic forces (material
+    angles held as they are)."""
+    x0 = np.asarray(x0, dtype=float)
+    s_count, n = x0.shape[:2]
+    stiffness = np.zeros((s_count, 3 * n, 3 * n))
+    for i in range(n):
+        for c in range(3):
+            forces = []
+            for sign in (1.0, -1.0):
+                x = x0.copy()
+                x[:, i, c] += sign * h
+                sim.set_positions(x)
+                forces.append(sim.elastic_forces())
+            stiffness[:, :, 3 * i + c] = -(forces[0] - forces[1]).reshape(s_count, -1) / (2 * h)
+    sim.set_positions(x0)
+    mass = sim.model.mass.to_numpy()
+    material = sim.model.materials[0]
+    return np.array([stiffest_mode_ratio(x0[s], mass[s, :n], stiffness[s], max(material.bending_stiffness),
+                                         material.linear_density) for s in range(s_count)])
 
 
 def planar(turns):
