@@ -1,0 +1,34 @@
+"""`taichi-hair bench --against REV` (app/history.py): the same bench from an older commit in a
+temporary worktree, alternating, with each row's ratio."""
+
+import pytest
+
+from taichi_hair.app import history
+
+
+def test_against_refuses_what_is_not_a_commit():
+    with pytest.raises(ValueError, match="--against must name a commit"):
+        history.resolve("no-such-revision-anywhere")
+
+
+def test_rows_are_named_by_precision_integrator_and_size():
+    results = [{"precision": "float32",
+                "cases": [{"strands": 100, "integrator": "explicit", "ms_per_frame": 12.0}],
+                "full_head": {"rows": [{"guides": 200, "integrator": "explicit", "style": "curly",
+                                        "hair_interaction": False, "ms_per_frame": 300.0}]}}]
+    assert history.row_times(results) == {"float32 explicit 100 guides": 12.0,
+                                          "float32 explicit full head 200 curly": 300.0}
+
+
+@pytest.mark.slow
+def test_bench_against_head_times_both_trees_alike():
+    # HEAD against itself: the same rows from both trees, each a positive time, and ratios near 1
+    # only as far as timing noise goes (not asserted: speed is measured, never asserted)
+    result = history.compare("HEAD", ["--strands", "1", "--repeats", "1", "--integrator", "explicit",
+                                      "--precision", "float32", "--head-guides", "0", "--dense", "0",
+                                      "--stage-steps", "1"], rounds=1)
+    rows = {r["row"]: r for r in result["rows"]}
+    assert list(rows) == ["float32 explicit 1 guides"]
+    row = rows["float32 explicit 1 guides"]
+    assert row["this_ms"] > 0 and row["against_ms"] > 0 and row["ratio"] > 0
+    assert "against" in history.format_comparison(result)
