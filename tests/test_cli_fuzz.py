@@ -88,7 +88,7 @@ def _cases():
         (["run", MISSING, "--out", "OUT", "--strain", "euler"], "--strain"),
         (["run", MISSING, "--out", "OUT", "--workers", "2", "--scheduler", "tcp://x:1"], "--scheduler"),
         (["run", MISSING, "--out", "OUT", "--bogus", "1"], "--bogus"),
-        (["run", MISSING], "--out"),
+        (["run", MISSING], MISSING),  # --out defaults to out/<scene name>
         (["run"], "scene"),
         (["sweep", MISSING, "--out", "OUT", "--set", "drag"], "--set"),
         (["sweep", MISSING, "--out", "OUT", "--set", "drag="], "drag"),

@@ -562,6 +562,8 @@ def default_out(scene) -> Path:
 
 
 def main(args) -> int:
+    if not Path(args.scene).is_file():  # before any folder is made for it
+        raise ValueError(f"scene script {args.scene} does not exist")
     if args.out is None:
         args.out = str(default_out(args.scene))
     options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
