@@ -117,4 +117,4 @@ def test_bench_is_quick_by_default_and_whole_with_full():
     assert "10000" not in quick.strands.split(",") and quick.integrator == "explicit"
     assert "10000" in full.strands.split(",") and full.integrator == "both"
     assert quick.dense < full.dense and quick.head_guides < full.head_guides
-    assert resolved("--full", "--strands", "7").strands == "7"
+    assert resolved("--full", "--strands", "7").strands == [7]

@@ -39,7 +39,7 @@ class Control:
     tools: object
     tool_points: object
     max_speed: float
-    first_step: int = 0
+    first_step: float = 0.0
     host: dict = field(default_factory=dict)  # numpy twins of head and tool_points (load_poses)
 
 

@@ -188,7 +188,8 @@ class Simulator:
             extensible=bool(extensible), strain=self.rods.strain)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
-        self._substep = 0  # (sub)steps of dt / substeps since t = 0: the clock, see `time`
+        self._substep = 0  # (sub)steps of dt / substeps taken: the clock, see `time`
+        self._clock_offset = 0.0  # the clock's start in substeps (0 unless dt changed off the grid)
         self.steps_taken = 0
         self._snapshot = None
         self._potential = arrays.scalars((groom.n_strands,))
@@ -219,11 +220,34 @@ class Simulator:
     def time(self) -> float:
         """Simulated time [s]: the substeps taken times the substep dt / substeps, a function of the
         step index (never a running sum), so any grouping of steps into calls ends at one time."""
-        return self._substep * (self.dt / self.substeps)
+        return self._step_index() * (self.dt / self.substeps)
 
     @time.setter
     def time(self, value: float) -> None:
-        self._substep = int(round(float(value) / (self.dt / self.substeps)))
+        self._set_clock(float(value))
+
+    def _step_index(self) -> float:
+        """The time in substeps of the current dt / substeps: a whole number while dt has not
+        changed off the grid of earlier steps (kernels take time as this index times h)."""
+        return self._clock_offset + self._substep
+
+    def _set_clock(self, t: float) -> None:
+        """The clock at time t [s] in steps of the current dt / substeps: a whole count where t
+        lies on their grid (so any grouping of later steps ends at one time, bit for bit), else
+        an offset from t."""
+        n = t / (self.dt / self.substeps)
+        whole = round(n)
+        if abs(n - whole) <= 1e-9 * max(1.0, abs(n)):
+            self._clock_offset, self._substep = 0.0, int(whole)
+        else:
+            self._clock_offset, self._substep = n, 0
+
+    def _set_dt(self, dt: float) -> None:
+        """dt [s] (and its substeps) changed at the current time, the clock kept."""
+        t = self.time
+        self.dt = dt
+        self.substeps = self._substeps(False)
+        self._set_clock(t)
 
     @property
     def stable_dt(self) -> float:
@@ -238,8 +262,7 @@ class Simulator:
         interval = _positive("interval", interval, "s")
         largest = self.dt if self.integrator == "implicit" else min(self.dt, self.stable_dt)
         count = max(1, math.ceil(interval / largest - 1e-9))
-        self.dt = interval / count
-        self.substeps = self._substeps(False)
+        self._set_dt(interval / count)
         self._history_h = None
         return count
 
@@ -446,7 +469,7 @@ class Simulator:
         while remaining > 0:
             count = 1 if staged and not small_contact else min(remaining, MAX_STEPS_PER_LAUNCH)
             moving = self._load_launch(h, count)
-            self.control.first_step = self._substep
+            self.control.first_step = self._step_index()
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
@@ -486,7 +509,7 @@ class Simulator:
 
     def _load_launch(self, h, count) -> bool:
         """Head poses and tool positions for a launch of `count` steps; True if the head moves."""
-        times = (self._substep + np.arange(count + 1)) * h
+        times = (self._step_index() + np.arange(count + 1)) * h
         if self.root_motion is not None:
             poses = [self._head_prev] + [self._head_at(t) for t in times[1:]]
             self._head = poses[-1]
@@ -506,9 +529,8 @@ class Simulator:
         if seconds == 0:
             return
         total = max(1, math.ceil(seconds / self.dt - 1e-9))
-        dt, substeps = self.dt, self.substeps
-        self.dt = seconds / total
-        self.substeps = self._substeps(strict=False)  # dt only shrank: never more than before
+        dt = self.dt
+        self._set_dt(seconds / total)  # dt only shrank: never more substeps than before
         per_chunk = max(1, int(round(chunk / self.dt)))
         try:
             with ProgressBar(seconds, "simulating", enabled=progress) as bar:
@@ -519,7 +541,7 @@ class Simulator:
                     done += k
                     bar.update(k * self.dt)
         finally:
-            self.dt, self.substeps = dt, substeps
+            self._set_dt(dt)
 
     def _take_snapshot(self):
         st = self.state
@@ -528,19 +550,20 @@ class Simulator:
                               for name in ("x", "v", "theta", "root_t", "root_u")}
         for name, copy in self._snapshot.items():
             copy.copy_from(getattr(st, name))
-        self._snapshot_clock = (self._substep, self.steps_taken, self._head)
+        self._snapshot_clock = (self._substep, self.steps_taken, self._head, self._clock_offset)
 
     def _diverged(self, h, bad_step):
         bad = np.flatnonzero(bad_step >= 0)
         first = bad[np.argmin(bad_step[bad])]
         counters = self.state.counters.to_numpy()
         cap_hits = int(counters[:, COUNTERS["projection_cap_hits"]].sum())
-        t = (self._substep + bad_step[first] + 1) * h
-        step = self._snapshot_clock[1] + int(math.ceil((t - self._snapshot_clock[0] * h) / self.dt - 1e-9))
+        t = (self._step_index() + bad_step[first] + 1) * h
+        start = (self._snapshot_clock[3] + self._snapshot_clock[0]) * h
+        step = self._snapshot_clock[1] + int(math.ceil((t - start) / self.dt - 1e-9))
         for name, copy in self._snapshot.items():
             getattr(self.state, name).copy_from(copy)
         self._history_h = None
-        self._substep, self.steps_taken, self._head = self._snapshot_clock
+        self._substep, self.steps_taken, self._head, self._clock_offset = self._snapshot_clock
         self._head_prev = self._head
         self._orient_roots()
         self.update_frames()
