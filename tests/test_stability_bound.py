@@ -19,17 +19,7 @@ def stiffest_mode_ratios(sim, x0, h=1e-7):
     angles held as they are)."""
     x0 = np.asarray(x0, dtype=float)
     s_count, n = x0.shape[:2]
-    stiffness = np.zeros((s_count, 3 * n, 3 * n))
-    for i in range(n):
-        for c in range(3):
-            forces = []
-            for sign in (1.0, -1.0):
-                x = x0.copy()
-                x[:, i, c] += sign * h
-                sim.set_positions(x)
-                forces.append(sim.elastic_forces())
-            stiffness[:, :, 3 * i + c] = -(forces[0] - forces[1]).reshape(s_count, -1) / (2 * h)
-    sim.set_positions(x0)
+    stiffness = sim.rods.elastic_hessian(x0, range(s_count), h)
     mass = sim.model.mass.to_numpy()
     material = sim.model.materials[0]
     return np.array([stiffest_mode_ratio(x0[s], mass[s, :n], stiffness[s], max(material.bending_stiffness),

@@ -256,6 +256,29 @@ class RodSystem:
                               md.rest_twist, md.voronoi, md.stiffness, clip, st.force)
         return self.state.force.to_numpy().astype(np.float64)
 
+    def elastic_hessian(self, x0, strands, h: float) -> np.ndarray:
+        """d^2 E / dx^2 [len(strands), 3 n, 3 n] N/m of the listed strands at positions x0
+        [S, N, 3] m (n the largest of their node counts), from central differences of
+        `elastic_forces` with step h [m] (material angles held as they are). Node 0 is held: its
+        columns stay zero. Positions and frames are x0's afterwards."""
+        x0 = np.asarray(x0, dtype=np.float64)
+        strands = list(strands)
+        counts = self.groom.node_counts
+        n_max = max(counts[s] for s in strands)
+        hessian = np.zeros((len(strands), 3 * n_max, 3 * n_max))
+        for i in range(1, n_max):
+            rows = [s for s in strands if i < counts[s]]
+            for c in range(3):
+                forces = []
+                for sign in (1.0, -1.0):
+                    x = x0.copy()
+                    x[rows, i, c] += sign * h
+                    self.set_positions(x)
+                    forces.append(self.elastic_forces()[strands, :n_max].reshape(len(strands), -1))
+                hessian[:, :, 3 * i + c] = -(forces[0] - forces[1]) / (2.0 * h)
+        self.set_positions(x0)
+        return hessian
+
     def bending_stiffness(self, condensed: bool = True) -> np.ndarray:
         """The implicit step's stiffness matrix K [S, 3N, 3N] in N/m at the current frames: the
         Gauss-Newton Hessian of the elastic energy over the free nodes, the free edges'
