@@ -6,7 +6,8 @@ Public API (see README.md):
     th.Material(youngs_modulus=..., shear_modulus=..., radius=..., density=..., ellipticity=1.0)
     th.Simulator(groom, material, twist="quasistatic"), th.Simulator.from_scene(scene, dt=...)
     th.sag_free(groom, material, gravity, head) -> (groom, SagFreeReport)
-    th.Scene(head=..., groom=..., material=..., motion=..., wind=..., touch=..., hair_interaction=...)
+    th.Scene(head=..., groom=..., material=..., solver=th.SolverOptions(...), environment=th.Environment(...))
+        (or the options' fields flat: th.Scene(groom=..., twist=..., motion=..., wind=...))
     th.Shot(frames=..., fps=..., dt=..., width=..., height=..., dense_strands=...): how a scene script is filmed
 """
 
@@ -28,11 +29,14 @@ from .rods.materials import Material
 from .runtime import init
 from .hair.sagfree import SagFreeReport, sag_free
 from .world.scene import Head, Scene
+from .world.options import Environment, SolverOptions
+from .rods.modes import Integrator, Projection, Root, Strain, Twist
 from .solver.simulator import Simulator
 from .solver.stability import SimulationDiverged
 from .hair.usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
 
 __all__ = ["init", "Shot", "Groom", "Material", "Simulator", "SimulationDiverged", "Scene", "Head",
+           "SolverOptions", "Environment", "Integrator", "Projection", "Root", "Strain", "Twist",
            "Sphere", "Ellipsoid", "Capsule", "Plane", "MeshCollider", "Wind", "Hand", "Grab",
            "HairInteraction", "StrandContact", "Still", "Nod", "Shake", "Turntable", "Jerk", "Keyframes", "compose",
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",

@@ -4,7 +4,9 @@ a scene and its shot as new frozen dataclasses, so their own checks name a bad v
 
 A path starts with `shot.` (a `runner.Shot` field: frames, fps, dt, width, ...) or names a
 `Scene` field, optionally after `scene.`, and goes down through dataclass fields:
-`material.youngs_modulus`, `drag`, `twist`, `wind.turbulence`, `hair_interaction.friction`. A
+`material.youngs_modulus`, `drag`, `twist`, `wind.turbulence`, `hair_interaction.friction` (a
+Scene's flat option names stand for their place in its options: `drag` is `environment.drag`,
+`twist` is `solver.twist`). A
 per-strand list of materials takes the setting on every material.
 """
 
@@ -104,7 +106,10 @@ def _replaced(obj, parts, value, path):
         return type(obj)(_replaced(o, parts, value, path) for o in obj)  # per-strand materials
     if not dataclasses.is_dataclass(obj):
         raise ValueError(f"{path}: {type(obj).__name__} has no settable fields")
-    names = [f.name for f in dataclasses.fields(obj) if f.init]
+    aliases = getattr(type(obj), "FIELD_ALIASES", {})  # a Scene's flat names: drag -> environment.drag
+    if parts and parts[0] in aliases:
+        parts = aliases[parts[0]].split(".") + list(parts[1:])
+    names = [f.name for f in dataclasses.fields(obj)]
     if not parts or parts[0] not in names:
         raise ValueError(f"{path}: unknown parameter; {type(obj).__name__} has {', '.join(names)}")
     name = parts[0]

@@ -69,11 +69,10 @@ import numpy as np
 from ..rods import arrays
 from ..rods.groom import Groom
 from ..rods.materials import Material, per_strand_materials, stiffness_table
-from ..world.scene import ROOT_MODES
 from ..rods.rod import first_node
 from ..world.scene import ColliderUnion, Head
 from ..runtime import precision
-from ..rods.twist import TWIST_MODES
+from ..rods.modes import Root, Twist
 
 ANGLE_TOLERANCE = 1e-7  # [rad]: the twist update no longer moves the angles
 # a smallest eigenvalue below -this x (nodal weight / segment length) is a saddle, not a minimum
@@ -353,10 +352,8 @@ def _check_inputs(groom, material, gravity, head, twist, regularization, max_tur
         raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
     if head is not None and not isinstance(head, Head):
         raise ValueError(f"head must be a taichi_hair.Head or None, got {type(head).__name__}")
-    if twist not in TWIST_MODES:
-        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
-    if root not in ROOT_MODES:
-        raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
+    Twist.parse("twist", twist)
+    Root.parse("root", root)
     if root != "clamped":
         raise ValueError(f"root must be 'clamped' for sag_free, got {root!r}: a pinned root is a "
                          "hinge, which cannot carry the moment of the strand's weight, so no rest "

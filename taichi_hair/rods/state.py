@@ -12,10 +12,11 @@ import taichi as ti
 from . import arrays
 from .frames import update_frames, update_material_frames
 from .groom import Groom
+from .modes import Strain
 from .materials import per_strand_materials, stiffness_table
 from .rod import material_curvatures, rotation_strains
 
-STRAINS = ("der", "rotation")  # the strain measures (rod.py; docs/model.md, "Strains from rotations")
+STRAINS = Strain.names()  # the strain measures (rod.py; docs/model.md, "Strains from rotations")
 
 
 @dataclass(frozen=True)
@@ -239,7 +240,7 @@ def build(groom: Groom, material, clamp: bool = True, implicit: bool = False,
     stiffness = arrays.vectors(4, (groom.n_strands,), np.stack(
         [table["ei1"], table["ei2"], table["gj"], table["axial"]], axis=1))
     voronoi_lengths = arrays.scalars(voronoi.shape, voronoi)
-    if strain == "rotation":  # (a groom's own rest curvatures are DER's: solver.system.resolve_strain)
+    if strain == "rotation":  # (a groom's own rest curvatures are DER's: world.options.SolverOptions.for_groom)
         rotation_strains(clamp, node_count, state.kb, state.m1, state.m2, state.theta, stiffness,
                          voronoi_lengths, rest_kappa)
     else:

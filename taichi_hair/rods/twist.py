@@ -22,7 +22,7 @@ Two modes (docs/model.md, "Twist"):
   follow: they are solved exactly, as in `quasistatic`.
 
 The quasistatic solve and the clips take `rotation` (ti.template): the strain measure (rod.py;
-Kmoch's rule on elliptic strands runs with DER, solver.system.resolve_strain). Under the
+Kmoch's rule on elliptic strands runs with DER, world.options.SolverOptions.for_groom). Under the
 rotation measure node i's energy depends on theta^{i-1} and theta^i together (through their mean,
 which turns its mid frame, and their difference, its twist), so the Hessian stays tridiagonal; its
 indefinite fallback is the Gauss-Newton Hessian, positive semi-definite node by node and definite
@@ -36,9 +36,10 @@ from .frames import material_directors
 from .linalg import back_substitute
 from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
                   rotation_node_terms, twist_terms)
+from .modes import Twist
 from ..runtime import precision
 
-TWIST_MODES = ("kmoch", "quasistatic", "none")
+TWIST_MODES = Twist.names()
 PI = 3.141592653589793
 MIN_CURVATURE_SQ = 1e-12  # |kb|^2 below which an edge has no bending direction to follow
 ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver

@@ -27,12 +27,15 @@ import taichi as ti
 
 from ..rods.arrays import edge, mat_block, point, step_displacement, vec3, vec3d, vec_block
 from ..rods.linalg import block_pentadiagonal_solve, product, thomas_solve
+from ..rods.modes import Root
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.frames import material_directors
 from ..rods.rod import SERIES_BELOW, edge_directors, first_node, node_edges, node_turn, rotation_scalars
 from ..world.forces import grab_force, grab_stiffness
 from .collisions import head_poses, strand_collide, strand_reset_friction
 from .pins import HELD_DAMPING
+
+ROOT_CLAMPED = Root.CLAMPED.code
 
 mat3d = ti.types.matrix(3, 3, ti.f64)  # the stiffness is assembled in float64 (arrays.mat_block)
 
@@ -393,7 +396,7 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     energy in play in 0.2 s without this). Shallow pushes stay with the projection: as springs
     they made resting contact sticky (collisions.SPRING_PUSH).
     Returns 1 if the factorisation met a singular pivot (a non-finite state), else 0."""
-    clamp, touch = ti.static(fl.root_mode == 0, fl.touch)
+    clamp, touch = ti.static(fl.root_mode == ROOT_CLAMPED, fl.touch)
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
     predict = correction == 0

@@ -17,7 +17,9 @@ from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_f
                         substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
-from ..world.scene import _host_distance, check_common_inputs
+from ..world.scene import Head, _host_distance
+from ..world.options import (DEFAULT_PROJECTION_TOL, Environment, SolverOptions,
+                             split_keywords)
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
@@ -25,27 +27,13 @@ from .strand_contact import contact_grid, resolve_strand_contacts
 from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
-from .system import DEFAULT_TWIST_ITERATIONS, RodSystem
+from .system import RodSystem
 from ..validation import is_integer, is_real
 from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
                    SMALL_CONTACT_SCENE, place_roots, project_once, seed_history, step_with_strand_contact,
                    steps_with_strand_contact, strand_mechanical_energy)
 
-DEFAULT_MAX_SUBSTEPS = 1000  # automatic substeps per step at most: past it a scene is refused
-# 1e-6 in both precisions: positions are stored in float64 and edges formed there, so even in
-# float32 |e|^2 - |ebar|^2 resolves to a few eps of the edge itself (~2.4e-7), whatever the
-# coordinates' magnitude. (With float32 positions the floor was ~2 eps X / ds, and a residual
-# left at such a tol was an edge stretched by tol ds / 2 that the next step removed as a
-# velocity kick: docs/model.md, "Positions and velocities in float32".)
-DEFAULT_PROJECTION_TOL = 1e-6
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
-
-
-def _vector3(name, value):
-    v = np.asarray(value, dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
-    return v
 
 
 def _positive(name, value, unit, upper=math.inf):
@@ -57,6 +45,14 @@ def _positive(name, value, unit, upper=math.inf):
 
 class Simulator:
     """Guide strands of `groom` made of `material` (one Material or one per strand).
+
+    The options come as typed data (taichi_hair.world.options, docs/architecture.md "Options"):
+    solver: a SolverOptions (integrator, projection, root, twist, strain, extensible, the
+    tolerances and caps below, stability_factor, max_substeps, max_speed, strict,
+    hair_interaction, strand_contact); environment: an Environment (gravity, drag, wind, motion,
+    touch); head: a Head whose colliders the hair stays out of (or colliders=, a sequence).
+    Every field of the two may also be given flat as a keyword (twist="kmoch", drag=5e-4;
+    root_motion= is motion=), replacing that field of `solver` / `environment`. The fields:
 
     dt: time step [s] of `step`, at most; past the explicit stability bound each step runs as
         equal substeps within it, silently (the same work as that smaller dt; `sim.substeps`,
@@ -127,66 +123,45 @@ class Simulator:
     Pins and clips on any other node: `add_pin`, `move_pin`, `release_pin`, `pins`.
     """
 
-    def __init__(self, groom: Groom, material, *, dt: float = 1e-3, gravity=(0.0, 0.0, -9.81),
-                 drag: float = 0.0, wind=(0.0, 0.0, 0.0), twist: str = "quasistatic",
-                 projection_tol: float | None = None, projection_iterations: int = 100,
-                 twist_tol: float | None = None, twist_iterations: int = DEFAULT_TWIST_ITERATIONS,
-                 root_motion=None,
-                 colliders=(), touch=(), hair_interaction=None, strict: bool = False,
-                 max_speed: float = 100.0, stability_factor: float | None = None,
-                 root: str = "clamped", max_substeps: int = DEFAULT_MAX_SUBSTEPS,
-                 integrator: str = "explicit", strand_contact=None, projection: str = "fast",
-                 extensible: bool = False, strain: str | None = None):
+    def __init__(self, groom: Groom, material, *, dt: float = 1e-3, solver: SolverOptions | None = None,
+                 environment: Environment | None = None, head: Head | None = None, colliders=None, **options):
         ensure_init()
-        _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                         wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
-                         projection, extensible)
+        solver, environment = split_keywords(solver, environment, options, "Simulator",
+                                             aliases={"root_motion": "motion"})
+        if not isinstance(groom, Groom):
+            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
+        solver = solver.for_groom(groom, material)
+        self.solver, self.environment = solver, environment
+        self.head = head
+        colliders = _colliders_of(head, colliders)
         self.groom = groom
         self.dt = _positive("dt", dt, "s", upper=1.0)
-        self.twist = twist
-        self.twist_iterations = twist_iterations
-        twist_tol = None if twist_tol is None else _positive("twist_tol", twist_tol, "")
-        if root == "free" and integrator == "implicit":
-            raise ValueError("integrator='implicit' needs a held root (root='clamped', 'pinned' or "
-                             "'edge'); a free root (root='free') runs with integrator='explicit'")
-        self.rods = RodSystem(groom, material, twist=twist, root=root, twist_tol=twist_tol,
-                              twist_iterations=twist_iterations, integrator=integrator, extensible=extensible,
-                              strain=strain)
-        self.integrator = integrator
+        self.twist = solver.twist
+        self.twist_iterations = solver.twist_iterations
+        self.rods = RodSystem(groom, material, solver)
+        self.integrator = solver.integrator
         self.strain = self.rods.strain
         self._history_h = None  # the step the implicit history was last seeded or stepped with
         self.model, self.state = self.rods.model, self.rods.state
-        self._pins = PinTable(self.model, root)
-        self.touch = tuple(touch)
-        self.root_motion = root_motion
-        self.stability_factor = (default_stability_factor(strand_contact is not None) if stability_factor is None
-                                 else _positive("stability_factor", stability_factor, "", upper=2.0))
-        self.control, facts = build_control(_vector3("gravity", gravity),
-                                            wind if isinstance(wind, Wind) else _vector3("wind", wind),
-                                            drag, tuple(colliders), self.touch,
-                                            _positive("max_speed", max_speed, "m/s"))
-        if facts["wind"] and drag == 0:
-            raise ValueError("wind acts through air drag: give drag > 0 N s/m per metre of strand "
-                             "(human hair in air: about 1e-4 to 1e-3)")
-        self.max_substeps = _check_max_substeps(max_substeps)
+        self._pins = PinTable(self.model, solver.root)
+        self.touch = environment.touch
+        self.root_motion = environment.motion
+        self.stability_factor = (default_stability_factor(solver.strand_contact is not None)
+                                 if solver.stability_factor is None else solver.stability_factor)
+        gravity, wind, drag = np.array(environment.gravity), environment.air_velocity, environment.drag
+        self.control, facts = build_control(gravity, wind, drag, colliders, self.touch, solver.max_speed)
+        self.max_substeps = solver.max_substeps
         lightest = float(self.model.mass.to_numpy()[self.model.inv_mass.to_numpy() > 0].min())
         self._measured_for = None  # (positions, _measured_stiffening's answer for them)
         self.bound = scene_bound(groom, self.model.materials, drag=drag, air_speed=_max_air_speed(wind),
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
-                                 factor=self.stability_factor, kmoch=twist == "kmoch",
+                                 factor=self.stability_factor, kmoch=self.twist == "kmoch",
                                  measured=self._measured_stiffening())
-        self.substeps = self._substeps(strict)
-        self.plan = StepPlan(
-            external_forces=bool(np.any(_vector3("gravity", gravity)) or drag > 0),
-            wind_field=facts["wind_field"], twist=twist, n_analytic=facts["n_analytic"],
-            mesh=facts["mesh"], touch=facts["touch"],
-            projection_tol=_positive("projection_tol", DEFAULT_PROJECTION_TOL if projection_tol is None else projection_tol,
-                                     "", upper=1.0),
-            projection_iterations=projection_iterations,
-            twist_tol=self.rods.twist_tol,
-            twist_iterations=twist_iterations, root=root, integrator=integrator, projection=projection,
-            extensible=bool(extensible), strain=self.rods.strain)
+        self.substeps = self._substeps(solver.strict)
+        self.plan = StepPlan.of(solver, facts, external_forces=bool(np.any(gravity) or drag > 0),
+                                projection_tol=DEFAULT_PROJECTION_TOL if solver.projection_tol is None
+                                else solver.projection_tol, twist_tol=self.rods.twist_tol)
         self._bundles = self.rods.bundles
         self._bundles.bind(self.control)
         self._substep = 0  # (sub)steps of dt / substeps taken: the clock, see `time`
@@ -195,17 +170,17 @@ class Simulator:
         self._snapshot = None
         self._potential = arrays.scalars((groom.n_strands,))
         self._head = self._head_prev = (np.eye(3), np.zeros(3))
-        if root_motion is not None:
+        if self.root_motion is not None:
             self._place_groom(*self._head_at(0.0))
-        self.skipped_colliders = self._colliders_holding_roots(tuple(colliders))
+        self.skipped_colliders = self._colliders_holding_roots(colliders)
         if self.plan.contacts:
             self._resolve_initial_contacts()
-            self._tighten_bound_to_start(strict)
+            self._tighten_bound_to_start(solver.strict)
         self.update_frames()
-        self.interaction = None if hair_interaction is None else InteractionGrid(
-            hair_interaction, groom, self.model, self.state, self._head[1])
-        self.strand_contact = strand_contact
-        self._contact_grid = None if strand_contact is None else contact_grid(strand_contact, self.model)
+        self.interaction = None if solver.hair_interaction is None else InteractionGrid(
+            solver.hair_interaction, groom, self.model, self.state, self._head[1])
+        self.strand_contact = solver.strand_contact
+        self._contact_grid = None if self.strand_contact is None else contact_grid(self.strand_contact, self.model)
         self._contact_depth = 0.0  # the largest depth a last contact pass found, since the stats reset
         # strand contact in scenes of at most this many nodes: many steps per launch, one thread
         # (step.advance_small_with_strand_contact); larger: a launch per step, parallel
@@ -765,27 +740,18 @@ def _max_air_speed(wind) -> float:
     return float(np.linalg.norm(wind))
 
 
-def _check_max_substeps(value) -> int:
-    if not (is_integer(value) and value >= 1):
-        raise ValueError(f"max_substeps must be an integer >= 1, got {value!r}")
-    return int(value)
-
-
-def _check_arguments(groom, twist, projection_iterations, twist_iterations, drag, root_motion,
-                     wind, colliders, touch, hair_interaction, gravity, integrator, strand_contact,
-                     projection, extensible):
-    check_common_inputs(groom=groom, twist=twist, motion=root_motion, motion_name="root_motion", wind=wind,
-                        touch=touch, hair_interaction=hair_interaction, gravity=gravity, drag=drag,
-                        integrator=integrator, strand_contact=strand_contact, projection=projection,
-                        extensible=extensible)
-    for name, value in (("projection_iterations", projection_iterations),
-                        ("twist_iterations", twist_iterations)):
-        if not (is_integer(value) and value >= 1):
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+def _colliders_of(head, colliders) -> tuple:
+    """The colliders of `head` (a Head or None) or the `colliders` sequence; both: ValueError."""
+    if head is not None and not isinstance(head, Head):
+        raise ValueError(f"head must be a taichi_hair.Head or None, got {type(head).__name__}")
+    if head is not None and colliders is not None:
+        raise ValueError("give head= or colliders=, not both (a Head carries its colliders)")
+    colliders = head.colliders if head is not None else tuple(colliders or ())
     for k, c in enumerate(colliders):
         if not isinstance(c, COLLIDER_TYPES):
             raise ValueError(f"colliders[{k}] must be one of Sphere, Ellipsoid, Capsule, Plane, "
                              f"MeshCollider; got {type(c).__name__}")
+    return colliders
 
 
 def check_rigid_transform(rotation, translation):

@@ -30,17 +30,14 @@ from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, S
                              contact_pass, resolve_strand_contacts)
 from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
 from ..rods.rod import elastic_forces, strand_elastic_forces
+from ..rods.modes import Integrator, Projection, Root, Strain, Twist
 from ..rods.state import COUNTERS, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.twist import (CAPPED, STALLED, kmoch_forces, strand_held_twist_forces, strand_kmoch_forces,
                           strand_twist_kmoch, strand_twist_quasistatic)
 
-TWIST_CODES = {"none": 0, "kmoch": 1, "quasistatic": 2}
-# root modes (docs/model.md, "The clamp at the root"): clamped at node 0 (bending from node 0),
-# pinned (a hinge at node 0), edge (the first edge held rigid, bending from node 1: the model
-# before the clamp moved to the root node, kept for comparison), free (no node held: node 0 has
-# its mass, the root edge's reference is carried in time as a pinned root's, and its material
-# angle is free in the twist solve)
-ROOT_CODES = {"clamped": 0, "pinned": 1, "edge": 2, "free": 3}
+TWIST_NONE, TWIST_KMOCH = Twist.NONE.code, Twist.KMOCH.code  # StageFlags.twist_mode
+# StageFlags.root_mode (docs/model.md, "The clamp at the root")
+ROOT_CLAMPED, ROOT_PINNED, ROOT_EDGE, ROOT_FREE = (Root[k].code for k in ("CLAMPED", "PINNED", "EDGE", "FREE"))
 STALL_BELOW = 1e-3  # a stall ends the projection only this close to satisfied (the rounding floor)
 LENGTHS_AFTER_CONTACT = 3  # length-only iterations after a projection with contacts ends unsatisfied
 FAILED_ABOVE = 1e-2  # a residual left above this (0.5 % strain) is a failed step, not a result
@@ -69,11 +66,12 @@ PROJ_IT_SUM, PROJ_COUNT = COUNTERS["projection_iterations_sum"], COUNTERS["proje
 
 @dataclass(frozen=True)
 class StepPlan:
-    """Which stages run (fixed when the simulator is built) and the solver tolerances."""
+    """Which stages run (fixed when the simulator is built) and the solver tolerances: the
+    solver's options (world/options.py SolverOptions) with what the scene brings."""
 
     external_forces: bool  # gravity, air drag or wind present
     wind_field: bool  # gusts or turbulence: air velocity varies in time and space
-    twist: str  # "kmoch", "quasistatic" or "none"
+    twist: Twist
     n_analytic: int  # analytic colliders
     mesh: bool  # a distance-grid collider
     touch: bool  # hands or grab tools
@@ -81,24 +79,35 @@ class StepPlan:
     projection_iterations: int
     twist_tol: float
     twist_iterations: int
-    root: str = "clamped"  # "clamped", "pinned" (a hinge at node 0) or "edge" (rigid first edge)
-    integrator: str = "explicit"  # one of world.scene.INTEGRATORS
-    projection: str = "fast"  # one of world.scene.PROJECTIONS (explicit integrator)
+    root: Root = Root.CLAMPED
+    integrator: Integrator = Integrator.EXPLICIT
+    projection: Projection = Projection.FAST  # explicit integrator
     extensible: bool = False  # edges stretch with axial stiffness EA (explicit integrator)
-    strain: str = "der"  # one of rods.state.STRAINS (the rotation measure: explicit integrator)
+    strain: Strain = Strain.DER
+
+    @classmethod
+    def of(cls, solver, facts: dict, *, external_forces: bool, projection_tol: float, twist_tol: float):
+        """The plan of `solver` (a SolverOptions resolved for its groom) in a scene whose control
+        facts (control.build_control) say which colliders and tools there are."""
+        return cls(external_forces=external_forces, wind_field=facts["wind_field"], twist=solver.twist,
+                   n_analytic=facts["n_analytic"], mesh=facts["mesh"], touch=facts["touch"],
+                   projection_tol=projection_tol, projection_iterations=solver.projection_iterations,
+                   twist_tol=twist_tol, twist_iterations=solver.twist_iterations, root=solver.root,
+                   integrator=solver.integrator, projection=solver.projection,
+                   extensible=solver.extensible, strain=solver.strain)
 
     @property
     def pinned_root(self) -> bool:
-        return self.root == "pinned"
+        return self.root == Root.PINNED
 
     @property
     def carried_root_frame(self) -> bool:
         """The root edge's reference frame is carried in time, not by the head (pinned, free)."""
-        return self.root in ("pinned", "free")
+        return self.root in (Root.PINNED, Root.FREE)
 
     @property
     def root_mode(self) -> int:
-        return ROOT_CODES[self.root]
+        return Root.parse("root", self.root).code
 
     @property
     def contacts(self) -> bool:
@@ -136,7 +145,7 @@ StepScalars = ti.types.struct(
 class StageFlags:
     """The compile-time switches of the step kernels (passed as ti.template, so each distinct
     value compiles its own kernel once per process): a stage whose flag is off is neither
-    compiled nor run. twist_mode: TWIST_CODES; root_mode: ROOT_CODES; user: user forces;
+    compiled nor run. twist_mode: a Twist's code; root_mode: a Root's code; user: user forces;
     moving_head: one head pose per step (else [prev, now]); pins: pins or clips are held; clips:
     a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
     symplectic Euler; shake: the projection's constraint forces along the start-of-step edges
@@ -164,7 +173,7 @@ class StageFlags:
 def stage_flags(plan: StepPlan, *, user: bool = False, moving_head: bool = False, pins: bool = False,
                 clips: bool = False, **overrides) -> StageFlags:
     """The flags of `plan` for one launch."""
-    flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=TWIST_CODES[plan.twist],
+    flags = dict(external=plan.external_forces, wind_field=plan.wind_field, twist_mode=Twist.parse("twist", plan.twist).code,
                  user=user, moving_head=moving_head, contacts=plan.contacts, mesh=plan.mesh,
                  touch=plan.touch, pins=pins, root_mode=plan.root_mode,
                  implicit=plan.integrator == "implicit", clips=clips, shake=plan.projection == "shake",
@@ -293,10 +302,10 @@ def strand_place_root(s, head: ti.template(), k, root_frame: ti.template(), x: t
     """The root node rides on head pose k: x_0 = R xbar_0 + t. A clamped root's frame (t, u), the
     clamp that node 0 bends and twists against and from which the Bishop frames start, turns
     with R; a pinned root's reference is carried in time instead (pins.strand_carry_root_frame)."""
-    if ti.static(root_mode != 3):  # a free root rides on nothing
-        for node in ti.static(range(2 if root_mode == 2 else 1)):  # "edge": the first edge rides too
+    if ti.static(root_mode != ROOT_FREE):  # a free root rides on nothing
+        for node in ti.static(range(2 if root_mode == ROOT_EDGE else 1)):  # "edge": the first edge rides too
             x[s, node] = head_rotate(head, k, root_frame[s, node]) + head[k, 3]
-    if ti.static(root_mode != 1 and root_mode != 3):
+    if ti.static(root_mode != ROOT_PINNED and root_mode != ROOT_FREE):
         root_t[s] = head_rotate(head, k, root_frame[s, 2])
         root_u[s] = head_rotate(head, k, root_frame[s, 3])
 
@@ -561,14 +570,14 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
     quasistatic mode). Returns 1 if the solve failed (iteration cap, or stalled far from
     equilibrium), else 0."""
     failed = 0
-    clamp = ti.static(fl.root_mode == 0)
-    if ti.static(fl.twist_mode != 0):
+    clamp = ti.static(fl.root_mode == ROOT_CLAMPED)
+    if ti.static(fl.twist_mode != TWIST_NONE):
         exact = 1
-        if ti.static(fl.twist_mode == 1):
+        if ti.static(fl.twist_mode == TWIST_KMOCH):
             if md.stiffness[s].x != md.stiffness[s].y:
                 exact = 0
         if exact:
-            it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == 3), fl.rotation,
+            it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == ROOT_FREE), fl.rotation,
                                                     md.node_count,
                                                     st.bishop_u, st.bishop_v, st.kb, st.theta,
                                                     md.rest_kappa, md.rest_twist, md.voronoi,
@@ -583,7 +592,7 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                 st.counters[s, TWIST_STALL] += 1
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
-        elif ti.static(fl.twist_mode == 1):
+        elif ti.static(fl.twist_mode == TWIST_KMOCH):
             st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
                                                                st.bishop_v, st.kb, st.theta, md.rest_kappa,
                                                                md.rest_twist, md.voronoi, md.stiffness, st.diag)
@@ -600,10 +609,10 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
                  co: ti.template()):
     """force = elastic (with Kmoch's rule's total-derivative term) + gravity, drag, wind, grabs
     + user forces."""
-    clamp = ti.static(fl.root_mode == 0)
+    clamp = ti.static(fl.root_mode == ROOT_CLAMPED)
     strand_elastic_forces(s, clamp, fl.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta,
                           st.root_t, st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
-    if ti.static(fl.twist_mode == 1):
+    if ti.static(fl.twist_mode == TWIST_KMOCH):
         strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
                             st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
     if ti.static(fl.clips):
@@ -638,7 +647,7 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
         again = 1
         while again:
             if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag,
-                                    ti.static(fl.twist_mode != TWIST_CODES["none"]), fl, sc, md, st, dr, co):
+                                    ti.static(fl.twist_mode != TWIST_NONE), fl, sc, md, st, dr, co):
                 bad = 1
             if passes == 0:
                 place_root_and_pins(s, k, now, fl, sc, md, st, dr)
@@ -687,9 +696,9 @@ def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.te
         bad = strand_implicit_velocities(s, sc, md, st)
     else:
         bad = strand_velocities(s, sc, md, st)
-    strand_frames(s, ti.static(fl.root_mode == 0), st.x, md.node_count, st.root_t, st.root_u, st.theta,
+    strand_frames(s, ti.static(fl.root_mode == ROOT_CLAMPED), st.x, md.node_count, st.root_t, st.root_u, st.theta,
                   st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb)
-    if ti.static(fl.root_mode == 1 or fl.root_mode == 3):
+    if ti.static(fl.root_mode == ROOT_PINNED or fl.root_mode == ROOT_FREE):
         strand_carry_root_frame(s, st.x, st.root_t, st.root_u)
     if ti.static(fl.clips):
         now, _ = head_poses(k, fl)
@@ -1029,9 +1038,9 @@ def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: flo
     clip_arrays: the pin table's (mode, start, end, clip) when clips hold twist (else None)."""
     if twist == "none":
         return
-    flags = StageFlags(external=False, wind_field=False, twist_mode=TWIST_CODES[twist], user=False,
+    flags = StageFlags(external=False, wind_field=False, twist_mode=Twist.parse("twist", twist).code, user=False,
                        moving_head=False, contacts=False, mesh=False, touch=False,
-                       pins=clip_arrays is not None, root_mode=ROOT_CODES[root], clips=clip_arrays is not None,
+                       pins=clip_arrays is not None, root_mode=Root.parse("root", root).code, clips=clip_arrays is not None,
                        rotation=bundles.rods[0].rotation)
     update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state,
                         bundles.twist_drive(clip_arrays))

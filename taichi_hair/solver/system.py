@@ -9,102 +9,40 @@ import numpy as np
 from ..rods import arrays
 from ..rods.frames import update_frames, update_material_frames
 from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
-from ..rods.materials import per_strand_materials
-from ..world.scene import ROOT_MODES
 from ..rods.rod import first_node, strand_elastic_energy, theta_gradient
 from ..runtime import ensure_init, precision
-from ..rods.state import COUNTERS, STRAINS, build
+from ..rods.state import COUNTERS, build
 from .step import StepBundles, run_twist_update, stiffness_blocks, total_elastic_forces
-from ..world.scene import INTEGRATORS
-from ..rods.twist import TWIST_MODES, held_twist_forces
-from ..validation import is_integer
+from ..world.options import Environment, SolverOptions, split_keywords
+from ..rods.twist import held_twist_forces
 
 MAX_SET_STRETCH = 2.0  # set_positions: an inextensible edge at most this x its rest length
-
-
-IMPLICIT_KMOCH_REFUSAL = (
-    "twist='kmoch' on elliptic strands (ellipticity > 1) runs with integrator='explicit': the rule's "
-    "twist forces are stiffer than bending and the implicit step's matrix does not hold them (use "
-    "twist='quasistatic' with the implicit step; docs/model.md, \"The implicit step\")")
-
-IMPLICIT_FROZEN_ELLIPTIC_REFUSAL = (
-    "twist='none' on elliptic strands (ellipticity > 1) runs with integrator='explicit': with the "
-    "angles frozen the implicit step's matrix has no angle columns and leaves out how the material "
-    "frames turn with the positions, which an elliptic section's bending feels; in its stability "
-    "matrix (float32) a 5 mm curl of ellipticity 1.5 gained all of its energy in play within 0.2 s and "
-    "curls of ellipticity 4 diverged (use twist='quasistatic' with the implicit step; docs/model.md, "
-    "\"The implicit step\")")
-
-# the quasistatic solve's default iteration cap: shaken elliptic curls snapping through between
-# branches took up to 112 Newton iterations under the rotation measure (48 under DER), where the
-# Hessian is indefinite and its Gauss-Newton fallback converges linearly
-DEFAULT_TWIST_ITERATIONS = 300
-
-ROTATION_KMOCH_REFUSAL = (
-    "twist='kmoch' on elliptic strands runs with strain='der' (or strain=None): Kmoch's rule was built "
-    "on the DER measure, and under strain='rotation' an undamped elliptic curl (ellipticity 4) swinging "
-    "for 0.5 s gained 1.1e-7 J, a quarter of its peak kinetic energy, at every step size tried (DER: no "
-    "gain); use twist='quasistatic' for the rotation measure (docs/model.md, \"Strains from rotations\")")
-
-
-def resolve_strain(strain, groom: Groom, twist: str, elliptic: bool) -> str:
-    """The strain measure of `strain`: "der", "rotation", or None: "rotation", but "der" for a
-    groom that carries its own rest curvatures (they are the DER measure's: sag_free makes them)
-    and under twist="kmoch" (the rule was built on DER: on elliptic curls under the rotation
-    measure it gains energy, measured in ROTATION_KMOCH_REFUSAL). elliptic: any strand is."""
-    if strain is None:
-        return "der" if groom.rest_curvature is not None or twist == "kmoch" else "rotation"
-    if strain not in STRAINS:
-        raise ValueError(f"strain must be one of {STRAINS} or None (rotation, or der for a groom with "
-                         f"its own rest curvatures or under twist='kmoch'), got {strain!r}")
-    if strain == "rotation" and groom.rest_curvature is not None:
-        raise ValueError("strain='rotation' cannot take this groom's own rest curvatures (e.g. from "
-                         "sag_free): they are the DER measure's; use strain='der' or strain=None")
-    if strain == "rotation" and twist == "kmoch" and elliptic:
-        raise ValueError(ROTATION_KMOCH_REFUSAL)
-    return strain
 
 
 class RodSystem:
     """The rods of `groom` made of `material` (one Material or one per strand).
 
-    twist: "quasistatic", "kmoch" or "none" (see Simulator); twist_tol, twist_iterations: the
-    quasistatic solve's scaled residual and iteration cap (defaults 1e-10 float64, 1e-5
-    float32; DEFAULT_TWIST_ITERATIONS). root: "clamped", "pinned", "edge" or "free" (see
-    Simulator). integrator: "explicit"
-    or "implicit" (allocates the implicit step's arrays, see Simulator); extensible: the edges
-    stretch with axial stiffness EA (see Simulator); strain: the strain measure, "rotation",
-    "der" or None (see Simulator, resolve_strain). Attributes: groom,
-    model (state.RodModel), state (state.RodState), bundles (step.StepBundles)."""
+    options: a SolverOptions (world/options.py), or its fields as keywords (twist="kmoch"); the
+    rods use its twist mode and solve's tolerance and cap, root, strain measure (resolved for
+    the groom: `options.strain`), extensibility, and the integrator (the implicit step's arrays
+    are allocated for it). Attributes: groom, options, model (state.RodModel), state
+    (state.RodState), bundles (step.StepBundles)."""
 
-    def __init__(self, groom: Groom, material, *, twist: str = "quasistatic", root: str = "clamped",
-                 twist_tol: float | None = None, twist_iterations: int = DEFAULT_TWIST_ITERATIONS,
-                 integrator: str = "explicit",
-                 extensible: bool = False, strain: str | None = None):
+    def __init__(self, groom: Groom, material, options: SolverOptions | None = None, **keywords):
         ensure_init()
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
-        if twist not in TWIST_MODES:
-            raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
-        if root not in ROOT_MODES:
-            raise ValueError(f"root must be one of {ROOT_MODES}, got {root!r}")
-        if not (is_integer(twist_iterations) and twist_iterations >= 1):
-            raise ValueError(f"twist_iterations must be an integer >= 1, got {twist_iterations!r}")
-        if integrator not in INTEGRATORS:
-            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        elliptic = any(m.ellipticity > 1.0 for m in per_strand_materials(material, groom.n_strands))
-        strain = resolve_strain(strain, groom, twist, elliptic)
-        if integrator == "implicit" and twist == "kmoch" and elliptic:
-            # measured: every elliptic kmoch case of the stability matrix diverged or gained energy
-            raise ValueError(IMPLICIT_KMOCH_REFUSAL)
-        if integrator == "implicit" and twist == "none" and elliptic:
-            raise ValueError(IMPLICIT_FROZEN_ELLIPTIC_REFUSAL)
-        self.groom, self.twist, self.root, self.integrator, self.strain = groom, twist, root, integrator, strain
-        self.extensible = bool(extensible)
-        self.twist_iterations = int(twist_iterations)
-        self.twist_tol = default_twist_tol() if twist_tol is None else twist_tol
-        if not (self.twist_tol > 0 and math.isfinite(self.twist_tol)):
-            raise ValueError(f"twist_tol must be a finite number > 0, got {twist_tol!r}")
+        options, environment = split_keywords(options, None, keywords, "RodSystem")
+        if environment != Environment():
+            raise TypeError("RodSystem takes solver options only (gravity, drag, wind, motion and touch "
+                            "are the Simulator's)")
+        options = options.for_groom(groom, material)
+        self.options = options
+        self.groom, self.twist, self.root, self.integrator = groom, options.twist, options.root, options.integrator
+        self.strain, self.extensible = options.strain, options.extensible
+        self.twist_iterations = options.twist_iterations
+        self.twist_tol = default_twist_tol() if options.twist_tol is None else options.twist_tol
+        root, integrator, strain, extensible = self.root, self.integrator, self.strain, self.extensible
         self.model, self.state = build(groom, material, clamp=root == "clamped",
                                        implicit=integrator == "implicit", extensible=bool(extensible),
                                        strain=strain)

@@ -1,19 +1,18 @@
 """A scene is data: head (colliders and a mesh to draw), groom, material, head motion, wind,
 touch tools and hair-hair interaction, handed to `Simulator.from_scene`."""
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, _scalar
-from .forces import Grab, Hand, Wind
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from ..rods.groom import Groom
-from .forces import HairInteraction, StrandContact
 from ..rods.materials import Material, per_strand_materials
-from ..rods.state import STRAINS
-from ..rods.twist import TWIST_MODES
+from ..rods.modes import Integrator, Projection, Root, Strain
+from .options import (ENVIRONMENT_KEYWORDS, SCENE_DRAG, SOLVER_KEYWORDS, Environment, SolverOptions,
+                      split_keywords)
 
-STRAIN_CHOICES = (None,) + STRAINS  # None: rotation, or der for a groom with its own rest curvatures
+STRAIN_CHOICES = (None,) + Strain.names()  # None: rotation, or der for a groom with its own rest curvatures
 
 COLLIDERS = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 
@@ -111,119 +110,61 @@ def _host_distance(c, p):
     return (p - a) @ b
 
 
-INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (solver/implicit.py)
-# the explicit step's inextensibility projection (solver/step.py): "fast" (Goldenthal et al.'s
-# fast projection: first order, it damps) or "shake" (constraint forces along the start-of-step
-# gradient: keeps an undamped swing's energy)
-PROJECTIONS = ("fast", "shake")
-# how node 0 is held (solver/step.py ROOT_CODES): "free" holds no node (a loose strand, or one
-# held only by pins and clips)
-ROOT_MODES = ("clamped", "pinned", "edge", "free")
+INTEGRATORS = Integrator.names()
+PROJECTIONS = Projection.names()
+ROOT_MODES = Root.names()
+
+# a Scene's flat keywords and the option each one sets (`Scene(twist="kmoch")` is
+# `Scene(solver=SolverOptions(twist="kmoch"))`); `--set drag=...` follows the same map
+FIELD_ALIASES = {**{name: f"solver.{name}" for name in SOLVER_KEYWORDS},
+                 **{name: f"environment.{name}" for name in ENVIRONMENT_KEYWORDS}}
 
 
-@dataclass(frozen=True, kw_only=True)
+@dataclass(frozen=True, init=False)
 class Scene:
     """Everything a simulation needs, as data.
 
-    groom: the rest shapes; material: one Material or one per strand; head: a Head or None;
-    motion: callable t -> (R, t) moving the head (taichi_hair.world.motion has nod, shake, turntable,
-    jerk and keyframes) or None; wind: a Wind, a 3-vector [m/s] or None; touch: Hand and Grab
-    tools; hair_interaction: a HairInteraction or None; strand_contact: a StrandContact (strands
-    that do not pass through each other: braids, ponytails, loose strands) or None; gravity [m/s^2]; drag [N s/m per metre
-    of strand] (default 5e-4: still air on hair plus the damping real hair shows); twist mode;
-    integrator: "explicit" (default) or "implicit" (see Simulator); projection: the explicit
-    step's projection, "fast" (default) or "shake" (see Simulator); root: how node 0 is held,
-    "clamped" (default), "pinned", "edge" or "free" (loose strands: see Simulator); extensible:
-    the edges stretch with axial stiffness EA (ropes, soft rods; see Simulator); strain: the
-    strain measure, "rotation", "der" or None (default: rotation, or der for a groom with its
-    own rest curvatures; see Simulator)."""
+    groom: the rest shapes; material: one Material or one per strand; head: a Head (colliders
+    and a mesh to draw) or None; solver: a SolverOptions (integrator, projection, root, twist,
+    strain, strand contact, hair interaction, ...); environment: an Environment (gravity, drag,
+    wind, the head's motion, touch tools; a Scene's default drag is SCENE_DRAG, 5e-4 N s/m per
+    metre: still air on hair plus the damping real hair shows).
+
+    Every field of SolverOptions and Environment may also be given flat, as a keyword
+    (`Scene(groom=g, twist="kmoch", drag=1e-3, motion=Shake())`): it replaces that field of
+    `solver` / `environment`, and reads back as an attribute (`scene.twist`, `scene.motion`)."""
+
+    FIELD_ALIASES = FIELD_ALIASES
 
     groom: Groom
-    material: object = field(default_factory=Material)
-    head: Head | None = None
-    motion: object = None
-    wind: object = None
-    touch: tuple = ()
-    hair_interaction: HairInteraction | None = None
-    strand_contact: StrandContact | None = None
-    gravity: tuple = (0.0, 0.0, -9.81)
-    drag: float = 5e-4
-    twist: str = "quasistatic"
-    integrator: str = "explicit"
-    projection: str = "fast"
-    root: str = "clamped"
-    extensible: bool = False
-    strain: str | None = None
+    material: object
+    head: Head | None
+    solver: SolverOptions
+    environment: Environment
 
-    def __post_init__(self):
-        if self.root not in ROOT_MODES:
-            raise ValueError(f"root must be one of {ROOT_MODES}, got {self.root!r}")
-        check_common_inputs(groom=self.groom, twist=self.twist, motion=self.motion, motion_name="motion",
-                            wind=(0.0, 0.0, 0.0) if self.wind is None else self.wind, touch=self.touch,
-                            hair_interaction=self.hair_interaction, gravity=self.gravity, drag=self.drag,
-                            integrator=self.integrator, strand_contact=self.strand_contact,
-                            projection=self.projection, extensible=self.extensible, strain=self.strain)
-        per_strand_materials(self.material, self.groom.n_strands)
-        if self.head is not None and not isinstance(self.head, Head):
-            raise ValueError(f"head must be a taichi_hair.Head or None, got {type(self.head).__name__}")
+    def __init__(self, *, groom: Groom, material=None, head: Head | None = None,
+                 solver: SolverOptions | None = None, environment: Environment | None = None, **options):
+        if not isinstance(groom, Groom):
+            raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
+        material = Material() if material is None else material
+        per_strand_materials(material, groom.n_strands)
+        if head is not None and not isinstance(head, Head):
+            raise ValueError(f"head must be a taichi_hair.Head or None, got {type(head).__name__}")
+        if environment is None:
+            environment = Environment(drag=options.pop("drag", SCENE_DRAG), wind=options.pop("wind", None))
+        solver, environment = split_keywords(solver, environment, options, "Scene")
+        for name, value in (("groom", groom), ("material", material), ("head", head), ("solver", solver),
+                            ("environment", environment)):
+            object.__setattr__(self, name, value)
+
+    def __getattr__(self, name):
+        """The flat names of the options (scene.twist, scene.drag, scene.motion, ...)."""
+        path = FIELD_ALIASES.get(name)
+        if path is None:
+            raise AttributeError(f"Scene has no attribute {name!r}")
+        part, field_name = path.split(".")
+        return getattr(object.__getattribute__(self, part), field_name)
 
     def simulator_options(self) -> dict:
         """Keyword arguments of `Simulator` that this scene sets."""
-        return {"gravity": tuple(self.gravity), "drag": self.drag,
-                "wind": (0.0, 0.0, 0.0) if self.wind is None else self.wind,
-                "root_motion": self.motion, "touch": tuple(self.touch),
-                "colliders": () if self.head is None else self.head.colliders,
-                "hair_interaction": self.hair_interaction, "twist": self.twist,
-                "integrator": self.integrator, "strand_contact": self.strand_contact,
-                "root": self.root, "projection": self.projection, "extensible": self.extensible,
-                "strain": self.strain}
-
-
-def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_interaction, gravity, drag,
-                        integrator="explicit", strand_contact=None, projection="fast", extensible=False,
-                        strain=None):
-    """The inputs a Scene and a Simulator share, checked in one place: ValueError naming the
-    parameter and what it allows. motion_name: what the caller calls the head motion."""
-    if integrator not in INTEGRATORS:
-        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    if projection not in PROJECTIONS:
-        raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
-    if projection == "shake" and integrator == "implicit":
-        raise ValueError("projection='shake' is the explicit step's projection: it runs with "
-                         "integrator='explicit' (the implicit step keeps energy by itself)")
-    if strain not in STRAIN_CHOICES:
-        raise ValueError(f"strain must be one of {STRAIN_CHOICES}, got {strain!r}")
-    if not isinstance(extensible, (bool, np.bool_)):
-        raise ValueError(f"extensible must be True or False, got {extensible!r}")
-    if extensible and integrator == "implicit":
-        raise ValueError("extensible=True runs with integrator='explicit' (the implicit step holds "
-                         "the edge lengths inside its solve)")
-    if not isinstance(groom, Groom):
-        raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
-    if twist not in TWIST_MODES:
-        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
-    if motion is not None and not callable(motion):
-        raise ValueError(f"{motion_name} must be a callable t -> (rotation 3x3, translation [3]) or None")
-    if not isinstance(wind, Wind) and not _finite_vector3(wind):
-        raise ValueError(f"wind must be a Wind or a finite 3-vector in m/s, got {wind!r}")
-    for k, tool in enumerate(touch):
-        if not isinstance(tool, (Hand, Grab)):
-            raise ValueError(f"touch[{k}] must be a Hand or a Grab, got {type(tool).__name__}")
-    if hair_interaction is not None and not isinstance(hair_interaction, HairInteraction):
-        raise ValueError(f"hair_interaction must be a HairInteraction or None, got {type(hair_interaction).__name__}")
-    if strand_contact is not None and not isinstance(strand_contact, StrandContact):
-        raise ValueError(f"strand_contact must be a StrandContact or None, got {type(strand_contact).__name__}")
-    if strand_contact is not None and integrator == "implicit":
-        raise ValueError("strand_contact runs with integrator='explicit' (the implicit step has no "
-                         "strand-strand contact)")
-    if not _finite_vector3(gravity):
-        raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
-    _scalar("drag", drag, "N s/m per metre")
-
-
-def _finite_vector3(value) -> bool:
-    try:
-        v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        return False
-    return v.shape == (3,) and bool(np.all(np.isfinite(v)))
+        return {"solver": self.solver, "environment": self.environment, "head": self.head}
