@@ -20,18 +20,18 @@ from .collisions import root_keeps_collider
 from ..world.scene import Head, _host_distance
 from ..world.options import (DEFAULT_PROJECTION_TOL, Environment, SolverOptions,
                              split_keywords)
-from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
+from .control import build_control, load_poses, load_tools
 from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
-from .strand_contact import contact_grid, resolve_strand_contacts
+from .strand_contact import contact_grid
 from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
 from .system import RodSystem
 from ..validation import is_integer, is_real
-from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan, advance, kmoch_step,
-                   SMALL_CONTACT_SCENE, place_roots, project_once, seed_history, step_with_strand_contact,
-                   steps_with_strand_contact, strand_mechanical_energy)
+from .drivers import StagedDriver, StrandContactDriver, choose_driver
+from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, SMALL_CONTACT_SCENE, StepPlan, place_roots,
+                   project_once, seed_history, strand_mechanical_energy)
 
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
@@ -181,10 +181,21 @@ class Simulator:
             solver.hair_interaction, groom, self.model, self.state, self._head[1])
         self.strand_contact = solver.strand_contact
         self._contact_grid = None if self.strand_contact is None else contact_grid(self.strand_contact, self.model)
-        self._contact_depth = 0.0  # the largest depth a last contact pass found, since the stats reset
-        # strand contact in scenes of at most this many nodes: many steps per launch, one thread
-        # (step.advance_small_with_strand_contact); larger: a launch per step, parallel
-        self.small_contact_nodes = SMALL_CONTACT_SCENE
+        self.small_contact_nodes = SMALL_CONTACT_SCENE  # builds self.driver
+
+    @property
+    def small_contact_nodes(self) -> int:
+        """Strand contact in scenes of at most this many nodes runs many steps per launch on one
+        thread; larger, a launch per step in parallel (drivers.StrandContactDriver)."""
+        return self._small_contact_nodes
+
+    @small_contact_nodes.setter
+    def small_contact_nodes(self, nodes: int) -> None:
+        self._small_contact_nodes = nodes
+        self.driver = choose_driver(self._bundles, self.plan, self.control, self.interaction,
+                                    self._contact_grid, self.strand_contact, nodes)
+        self._contact = self.driver if isinstance(self.driver, StrandContactDriver) else getattr(
+            self.driver, "contact", None)
 
     @classmethod
     def from_scene(cls, scene, dt: float = 1e-3, **options) -> "Simulator":
@@ -432,32 +443,16 @@ class Simulator:
             seed_history(h, self.model.node_count, st.v, st.history, st.tension)
             self._history_h = h
         remaining = total = n * self.substeps
-        staged = timers is not None or self.interaction is not None or self.strand_contact is not None
-        # strand contact without timers or the hair grid runs fused: a launch per step, or in a small
-        # scene many steps per launch on one thread
-        fused_contact = self.strand_contact is not None and timers is None and self.interaction is None
-        small_contact = fused_contact and (self.model.groom.n_strands * self.model.groom.max_nodes
-                                           <= self.small_contact_nodes)
+        driver = self.driver if timers is None else StagedDriver(
+            self._bundles, self.plan, self.control, self.interaction, self._contact, timers)
         while remaining > 0:
-            count = 1 if staged and not small_contact else min(remaining, MAX_STEPS_PER_LAUNCH)
+            count = driver.launch_size(remaining)
             moving = self._load_launch(h, count)
             self.control.first_step = self._step_index()
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
-            if small_contact:
-                steps_with_strand_contact(self._bundles, self.plan, self.control, h, count, self._contact_grid,
-                                          self.strand_contact, moving, pins)
-            elif fused_contact:
-                depth = step_with_strand_contact(self._bundles, self.plan, self.control, h, self._contact_grid,
-                                                 self.strand_contact, pins)
-                self._contact_depth = max(self._contact_depth, depth)
-            elif staged:
-                kmoch_step(self._bundles, self.plan, self.model, self.state, self.control, h, timers,
-                           self.interaction.stage if self.interaction is not None else None, pins,
-                           self._strand_contact_stage if self.strand_contact is not None else None)
-            else:
-                advance(self._bundles, self.plan, self.control, h, count, moving, pins)
+            driver.launch(h, count, moving, pins)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)
@@ -466,11 +461,6 @@ class Simulator:
             remaining -= count
         self.steps_taken += n
         self._pins.settle()
-
-    def _strand_contact_stage(self, project):
-        depth = resolve_strand_contacts(self._contact_grid, self.strand_contact, self.model, self.state,
-                                        project)
-        self._contact_depth = max(self._contact_depth, depth)
 
     def strand_contact_depth(self) -> float:
         """The deepest strand-strand overlap [m] at the current positions (0 without
@@ -618,10 +608,11 @@ class Simulator:
             report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
         if self.strand_contact is not None:
             fused = self._contact_grid.deepest_since_reset(reset)
-            report["strand_contact_depth_max"] = max(self._contact_depth, fused)
+            report["strand_contact_depth_max"] = max(self._contact.depth, fused)
         if reset:
             self._reset_counters()
-            self._contact_depth = 0.0
+            if self._contact is not None:
+                self._contact.reset_depth()
         return report
 
     def _reset_counters(self):
