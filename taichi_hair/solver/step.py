@@ -864,10 +864,8 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
         for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
             if stage(s, 0, fl, sc, md, st, dr, co):
                 st.counters[s, BAD] = 0
-    contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x, st.x_prev,
-                 md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count, cg.bucket_start, cg.cursor,
-                 cg.sorted_seg, mask, friction, cg.grid_params, cg.grid_counters, cg.delta, cg.hits,
-                 cg.hits)  # (the record array: unused when resolving)
+    contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx, self_contact,
+                 mask, friction)
     cg.grid_params[DONE] = 1.0
     project = 0
     if cg.grid_counters[PAIRS] > 0:
@@ -908,10 +906,8 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
                     failed = 1
         depth = 0.0
         for _ in range(iterations):
-            contact_pass(RESOLVE, with_friction, md.node_count, cg.radius, cg.gap, self_contact, st.x,
-                         st.x_prev, md.inv_mass, st.dx, cg.seg_cell, cg.seg_bucket, cg.bucket_count,
-                         cg.bucket_start, cg.cursor, cg.sorted_seg, mask, friction, cg.grid_params,
-                         cg.grid_counters, cg.delta, cg.hits, cg.hits)
+            contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx,
+                         self_contact, mask, friction)
             if cg.grid_counters[PAIRS] == 0:
                 break
             depth = cg.grid_params[MAX_PENETRATION]

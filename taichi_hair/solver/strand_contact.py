@@ -40,7 +40,7 @@ IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
 ContactGridArgs = ti.types.argpack(
     radius=Scalars1, gap=Ints1, seg_cell=IVec3s1, seg_bucket=Ints1, bucket_count=Ints1,
     bucket_start=Ints1, cursor=Ints1, sorted_seg=Ints1, grid_params=Scalars1, grid_counters=Ints1,
-    delta=Vec3s2, hits=Ints2)
+    delta=Vec3s2, hits=Ints2, grid_record=Ints2)
 
 # what a pair pass does with the pairs it finds
 MEASURE, RESOLVE, RECORD = 0, 1, 2
@@ -268,12 +268,8 @@ def _push(s, i, w, inv_mass: ti.template(), correction, delta: ti.template(), hi
 
 
 @ti.func
-def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti.template(),
-               radius: ti.template(), gap: ti.template(), self_contact, x: ti.template(),
-               x_prev: ti.template(), inv_mass: ti.template(), seg_cell: ti.template(),
-               seg_bucket: ti.template(), bucket_start: ti.template(), sorted_seg: ti.template(), mask,
-               friction, params: ti.template(), counters: ti.template(), delta: ti.template(),
-               hits: ti.template(), record: ti.template()):
+def _pair_pass(mode: ti.template(), with_friction: ti.template(), cg: ti.template(), node_count: ti.template(),
+               x: ti.template(), x_prev: ti.template(), inv_mass: ti.template(), self_contact, mask, friction):
     """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
     non-excluded segments closer than r_a + r_b with at least one free node is a contact.
     counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
@@ -288,7 +284,12 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti
     since x_prev if shorter than friction x depth (static), else minus friction x depth along it
     (kinetic). The corrections sum to zero momentum (the shares on a and on b each sum to 1).
     MEASURE: counters and penetration only. RECORD: also write
-    (g_a, g_b) of the first record.shape[0] contacts to record."""
+    (g_a, g_b) of the first record.shape[0] contacts to record. cg: the grid's arrays
+    (a ContactGridArgs)."""
+    radius, gap, seg_cell, seg_bucket = ti.static(cg.radius, cg.gap, cg.seg_cell, cg.seg_bucket)
+    bucket_start, sorted_seg, params, counters = ti.static(cg.bucket_start, cg.sorted_seg, cg.grid_params,
+                                                           cg.grid_counters)
+    delta, hits, record = ti.static(cg.delta, cg.hits, cg.grid_record)
     n_seg = x.shape[1] - 1
     counters[PAIRS] = 0
     counters[CANDIDATES] = 0
@@ -421,36 +422,29 @@ def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.templat
 
 
 @ti.kernel
-def _contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: Ints1, radius: Scalars1,
-                  gap: Ints1, self_contact: ti.i32, x: Points2, x_prev: Points2, inv_mass: Scalars2,
-                  dx: Vec3s2, seg_cell: IVec3s1, seg_bucket: Ints1, bucket_count: Ints1,
-                  bucket_start: Ints1, cursor: Ints1, sorted_seg: Ints1, mask: ti.i32, friction: float,
-                  params: Scalars1, counters: Ints1, delta: Vec3s2, hits: Ints2, record: Ints2):
+def _contact_pass(mode: ti.template(), with_friction: ti.template(), cg: ContactGridArgs, node_count: Ints1,
+                  x: Points2, x_prev: Points2, inv_mass: Scalars2, dx: Vec3s2, self_contact: ti.i32, mask: ti.i32,
+                  friction: float):
     """One contact pass in one launch (launch overhead, not the work, dominates small scenes):
     the stages _count, _prefix, _fill, _pair_pass and, resolving, _apply, each a top-level
     loop (Taichi runs a kernel's top-level loops one after another)."""
-    contact_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, dx,
-                 seg_cell, seg_bucket, bucket_count, bucket_start, cursor, sorted_seg, mask, friction,
-                 params, counters, delta, hits, record)
+    contact_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, dx, self_contact, mask, friction)
 
 
 @ti.func
-def contact_pass(mode: ti.template(), with_friction: ti.template(), node_count: ti.template(),
-                 radius: ti.template(), gap: ti.template(), self_contact, x: ti.template(),
-                 x_prev: ti.template(), inv_mass: ti.template(), dx: ti.template(), seg_cell: ti.template(),
-                 seg_bucket: ti.template(), bucket_count: ti.template(), bucket_start: ti.template(),
-                 cursor: ti.template(), sorted_seg: ti.template(), mask, friction, params: ti.template(),
-                 counters: ti.template(), delta: ti.template(), hits: ti.template(), record: ti.template()):
+def contact_pass(mode: ti.template(), with_friction: ti.template(), cg: ti.template(), node_count: ti.template(),
+                 x: ti.template(), x_prev: ti.template(), inv_mass: ti.template(), dx: ti.template(), self_contact,
+                 mask, friction):
     """The stages of one pass as top-level loops of the calling kernel (or, in a serial kernel,
-    loops in turn: step.advance_small_with_strand_contact)."""
-    _count(node_count, x, params, seg_cell, seg_bucket, bucket_count, mask)
-    _prefix(bucket_count, bucket_start, cursor)
-    _fill(seg_bucket, cursor, sorted_seg)
-    _pair_pass(mode, with_friction, node_count, radius, gap, self_contact, x, x_prev, inv_mass, seg_cell,
-               seg_bucket, bucket_start, sorted_seg, mask, friction, params, counters, delta, hits, record)
+    loops in turn: step.advance_small_with_strand_contact); cg: the grid's arrays (ContactGridArgs),
+    node_count, x, x_prev, inv_mass, dx: the rods'."""
+    _count(node_count, x, cg.grid_params, cg.seg_cell, cg.seg_bucket, cg.bucket_count, mask)
+    _prefix(cg.bucket_count, cg.bucket_start, cg.cursor)
+    _fill(cg.seg_bucket, cg.cursor, cg.sorted_seg)
+    _pair_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, self_contact, mask, friction)
     if ti.static(mode == RESOLVE):
-        _apply(node_count, inv_mass, delta, hits, x, dx)
-    params[PAIR_COUNT] = ti.cast(counters[PAIRS], float)
+        _apply(node_count, inv_mass, cg.delta, cg.hits, x, dx)
+    cg.grid_params[PAIR_COUNT] = ti.cast(cg.grid_counters[PAIRS], float)
 
 
 def neighbour_gap(radius, mean_length):
@@ -569,10 +563,8 @@ class ContactGrid:
             if getattr(self, "_unused_dx", None) is None:
                 self._unused_dx = arrays.vectors(3, (self.S, self.N))
             dx = self._unused_dx
-        _contact_pass(mode, with_friction, self.node_count, self.radius, self.gap, int(self.self_contact),
-                      x, x_prev, inv_mass, dx, self.seg_cell, self.seg_bucket,
-                      self.bucket_count, self.bucket_start, self.cursor, self.sorted_seg, self.T - 1,
-                      self.friction, self.params, self.counters, self.delta, self.hits, self.record)
+        _contact_pass(mode, with_friction, self.args(), self.node_count, x, x_prev, inv_mass, dx,
+                      int(self.self_contact), self.T - 1, self.friction)
         params = self.params.to_numpy()
         self.last_pairs = int(round(float(params[PAIR_COUNT])))
         self.last_max_penetration = float(params[MAX_PENETRATION])
@@ -585,7 +577,7 @@ class ContactGrid:
                 radius=self.radius, gap=self.gap, seg_cell=self.seg_cell, seg_bucket=self.seg_bucket,
                 bucket_count=self.bucket_count, bucket_start=self.bucket_start, cursor=self.cursor,
                 sorted_seg=self.sorted_seg, grid_params=self.params, grid_counters=self.counters, delta=self.delta,
-                hits=self.hits)
+                hits=self.hits, grid_record=self.record)
         return self._args
 
     def allowed_depth(self, tolerance: float) -> float:
@@ -633,6 +625,7 @@ class ContactGrid:
         counters = self.counters.to_numpy()
         if counters[RECORDED] > self.record.shape[0]:
             self.record = arrays.ints((int(counters[RECORDED]), 2), 0)
+            self._args = None  # the bundle holds the old record array
             self._pass(RECORD, False, x, x, masses)
             counters = self.counters.to_numpy()
         found = self.record.to_numpy()[:int(counters[RECORDED])]
