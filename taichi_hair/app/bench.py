@@ -241,8 +241,8 @@ def compile_main(args) -> int:
             raise ValueError(f"--scenes must name shipped scenes ({', '.join(sorted(known))}), got {args.scenes!r}")
         scenes = [known[name] for name in wanted]
     integrators = ("explicit", "implicit") if args.integrator in (None, "both") else (args.integrator,)
-    show = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
-    cells = compile_table(scenes, integrators, args.compile_timeout, progress=show)
+    cells = compile_table(scenes, integrators, args.compile_timeout,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
     print(json.dumps(cells, indent=2) if args.json else format_cells(cells, kernels=args.kernels))
     return 0 if all("error" not in c for c in cells) else 1
 
