@@ -163,7 +163,8 @@ def format_cells(cells: list, kernels: bool = False) -> str:
             for name, r in rows:
                 if r["front_cpu_s"] + r["back_cpu_s"] >= 0.05:
                     lines.append(f"    {name:40} x{r['instances']:<2d} front {r['front_s']:6.1f} s "
-                                 f"({r['front_cpu_s']:6.1f} cpu)  back {r['back_s']:6.1f} s ({r['back_cpu_s']:6.1f} cpu)")
+                                 f"({r['front_cpu_s']:6.1f} cpu)  back {r['back_s']:6.1f} s "
+                                 f"({r['back_cpu_s']:6.1f} cpu)")
     lines.append("first frame: build excluded, simulation only (no interpolation or rendering), cold offline "
                  "cache; compile = first frame - second frame; wall s, (cpu s) = user + system of the process")
     return "\n".join(lines)

@@ -25,7 +25,8 @@ from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
 from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
 from .implicit import (CORRECTION_TOL, MAX_CORRECTIONS, assemble_stiffness, clear_system, length_residual,
-                       record_elastic_change, strand_implicit_assemble, strand_implicit_finish, strand_implicit_velocities)
+                       record_elastic_change, strand_implicit_assemble, strand_implicit_finish,
+                       strand_implicit_velocities)
 from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, STEP_VALUES, ContactGridArgs,
                              contact_pass, resolve_strand_contacts)
 from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
