@@ -44,6 +44,7 @@ OPTIONS = [
     (["bench"], "--stage-steps", int, 1, 10_000, False),
     (["bench"], "--head-guides", int, 0, 100_000, False),
     (["bench"], "--dense", int, 0, 10_000_000, False),
+    (["bench"], "--compile-timeout", int, 10, 100_000, False),
     (["bench"], "--n-elements", int, 2, 100_000, False),
     (["bench"], "--jobs", int, 1, 256, False),
     (["report", "stability"], "--duration", float, 0.0, 100.0, True),

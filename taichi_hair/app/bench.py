@@ -195,6 +195,8 @@ def main(args) -> int:
             raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
                              f"pip install 'taichi_hair[bench]'") from None
         return bench_main(args)
+    if args.compile:
+        return compile_main(args)
     apply_preset(args)
     strands = args.strands if isinstance(args.strands, list) else [int(s) for s in args.strands.split(",")]
     if args.against is not None:
@@ -227,6 +229,24 @@ def main(args) -> int:
     return 0
 
 
+def compile_main(args) -> int:
+    """`bench --compile`: the cold first-frame compile table (app/compiletime.py)."""
+    from .compiletime import compile_table, format_cells, shipped_scenes
+    scenes = shipped_scenes()
+    if args.scenes:
+        known = {p.stem: p for p in scenes}
+        wanted = [name.strip() for name in args.scenes.split(",") if name.strip()]
+        unknown = [name for name in wanted if name not in known]
+        if unknown or not wanted:
+            raise ValueError(f"--scenes must name shipped scenes ({', '.join(sorted(known))}), got {args.scenes!r}")
+        scenes = [known[name] for name in wanted]
+    integrators = ("explicit", "implicit") if args.integrator in (None, "both") else (args.integrator,)
+    cells = compile_table(scenes, integrators, args.compile_timeout,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+    print(json.dumps(cells, indent=2) if args.json else format_cells(cells, kernels=args.kernels))
+    return 0 if all("error" not in c for c in cells) else 1
+
+
 # the table's size: the quick one by default (a couple of minutes on 2 cores, the implicit
 # step's long first compile left out), --full for the whole table; an option given wins
 QUICK = {"strands": "1,100,1000", "repeats": 3, "stage_steps": 3, "integrator": "explicit", "head_guides": 200,
@@ -252,6 +272,15 @@ def add_parser(sub):
     p.add_argument("--full", action="store_true",
                    help="the whole table: 10000 guides, both integrators (the implicit step compiles for "
                         "minutes on a cold cache), 1000 head guides, 100000 dense strands")
+    p.add_argument("--compile", action="store_true",
+                   help="instead: the cold compile time of every shipped scene's first frame, each integrator, "
+                        "each cell in a subprocess with a fresh Taichi offline cache (minutes per cell)")
+    p.add_argument("--scenes", default=None,
+                   help="with --compile: comma-separated scene names (default: every script in scenes/)")
+    p.add_argument("--kernels", action="store_true",
+                   help="with --compile: each cell's kernels under it, front and back end compile times")
+    p.add_argument("--compile-timeout", type=cli_int("--compile-timeout", 10, 100_000), default=1800,
+                   help="with --compile: seconds a cell may run before it is reported as over (default: 1800)")
     p.add_argument("--arch", default="cpu", help="cpu, or cuda where a GPU exists")
     p.add_argument("--precision", default="float32", choices=["float32", "float64", "both"], help="float type")
     p.add_argument("--strands", type=cli_int_list("--strands", 1, 1_000_000), default=None,

@@ -373,11 +373,15 @@ def clear_system(s, n, clear_dx, st: ti.template()):
 
 
 @ti.func
-def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), fl: ti.template(), sc,
-                         md: ti.template(), st: ti.template(), dr: ti.template(), co: ti.template()):
-    """One of the step's solves (module doc): the predictor, or a length correction (repeated
-    by stage_integrate while an edge is off by more than CORRECTION_TOL), chosen at run time so
-    the kernel holds one copy of the assembly and the solver (they dominate its compile time).
+def strand_implicit_assemble(s, k, correction: ti.template(), h, drag, twist_free: ti.template(),
+                             fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
+                             co: ti.template()):
+    """The system of one of the step's solves (module doc) in st.blocks, st.block_rhs, for
+    linalg.block_pentadiagonal_solve and then strand_implicit_finish: the predictor, or a length
+    correction (repeated while an edge is off by more than CORRECTION_TOL), chosen at compile
+    time. Assembly, solve and finish each run in kernels of their own (step.py, the implicit
+    driver): they dominate the step's compile time, and a kernel's compile time grows faster
+    than its size.
 
     correction 0, the BDF2 predictor: solves for v_{n+1} with the edge lengths linearised
     inside the solve, records the tensions, sets x_prev = x_n, v_{n-1} = v_n, dx = x_{n+1} - x_n
@@ -394,15 +398,14 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
     spring to where it would be pushed, so the strand follows the push in the same metric
     instead of the projection kinking it (5 mm curls resting on a head gained 0.74 of the
     energy in play in 0.2 s without this). Shallow pushes stay with the projection: as springs
-    they made resting contact sticky (collisions.SPRING_PUSH).
-    Returns 1 if the factorisation met a singular pivot (a non-finite state), else 0."""
+    they made resting contact sticky (collisions.SPRING_PUSH)."""
     clamp, touch = ti.static(fl.root_mode == ROOT_CLAMPED, fl.touch)
     n = md.node_count[s]
     hh = 2.0 * h / 3.0
-    predict = correction == 0
+    predict = ti.static(correction == 0)
     clear_system(s, n, predict, st)
     assemble_stiffness(s, clamp, twist_free, fl.rotation, hh * hh, md, st, predict)
-    if predict:
+    if ti.static(predict):
         if ti.static(twist_free):
             condense_history(s, n, clamp, hh * hh, md, st)
         # the part of the last step's elastic force change that K missed (module doc), carried
@@ -421,7 +424,7 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
         diagonal = 1.0
         if md.inv_mass[s, i] > 0.0:
             diagonal = md.mass[s, i]
-            if predict:
+            if ti.static(predict):
                 damping = drag * md.voronoi[s, i]
                 vhat = (4.0 * st.v[s, i] - st.history[s, i, HIST_V]) / 3.0
                 rhs = md.mass[s, i] * vhat + hh * (st.force[s, i] + st.history[s, i, HIST_CHANGE]
@@ -435,31 +438,42 @@ def strand_implicit_pass(s, k, correction, h, drag, twist_free: ti.template(), f
         # (the twist at equilibrium at x_n; st.dx's condensed K takes in xhat - x_n)
         st.block_rhs[s, i] = vec_block(rhs.x, rhs.y, rhs.z, 0.0, 0.0)
     # the predictor's rows hold the history and are in velocities, the correction's in moves
-    assemble_constraints(s, n, ti.select(predict, 1.0 / 3.0, 0.0), ti.select(predict, 1.0 / hh, 1.0), md, st)
-    if not predict:
+    assemble_constraints(s, n, 1.0 / 3.0 if ti.static(predict) else 0.0, 1.0 / hh if ti.static(predict) else 1.0,
+                         md, st)
+    if ti.static(not predict):
         if ti.static(fl.contacts):
             now, prev = head_poses(k, fl)
             strand_reset_friction(s, st)  # each correction's springs take one pass's friction
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, True)
-    failed = block_pentadiagonal_solve(s, n, st.blocks, st.block_rhs)
-    if predict:
+
+
+@ti.func
+def strand_implicit_finish(s, correction: ti.template(), h, md: ti.template(), st: ti.template()):
+    """Take the solution of strand_implicit_assemble's system (solved in place by
+    linalg.block_pentadiagonal_solve):
+    the predictor (correction 0) records the tensions, sets x_prev = x_n, v_{n-1} = v_n, v =
+    v_{n+1}, dx = x_{n+1} - x_n and x = x_{n+1} on free nodes (held nodes: dx = 0, placed
+    after); a correction adds its move to x and dx."""
+    predict = ti.static(correction == 0)
+    n = md.node_count[s]
+    hh = 2.0 * h / 3.0
+    if ti.static(predict):
         for i in range(1, n):  # the multiplier of edge i-1, scaled by m_i (assemble_constraints)
             st.tension[s, i - 1] = ti.cast(st.block_rhs[s, i][3], float) * md.mass[s, i] / hh
     for i in range(n):
-        if predict:
+        if ti.static(predict):
             st.x_prev[s, i] = st.x[s, i]
             st.history[s, i, HIST_V] = st.v[s, i]
         if md.inv_mass[s, i] > 0.0:
             y = st.block_rhs[s, i]
             solved = ti.cast(vec3d(y[0], y[1], y[2]), float)
-            if predict:
+            if ti.static(predict):
                 st.v[s, i] = solved
                 st.dx[s, i] = st.history[s, i, HIST_DX] / 3.0 + hh * solved
                 st.x[s, i] += st.dx[s, i]
             else:
                 st.x[s, i] += solved
                 st.dx[s, i] += solved
-    return failed
 
 
 CORRECTION_TOL = 1e-4  # relative length error a length correction must leave, else it repeats
@@ -467,13 +481,14 @@ MAX_CORRECTIONS = 4
 
 
 @ti.func
-def length_residual(s, md: ti.template(), st: ti.template()):
+def length_residual(s, node_count: ti.template(), inv_mass: ti.template(), rest_length: ti.template(),
+                    x: ti.template()):
     """max_j | |e_j| - l_j | / l_j over strand s's edges with a free node (relative)."""
     worst = 0.0
-    for j in range(md.node_count[s] - 1):
-        if md.inv_mass[s, j] + md.inv_mass[s, j + 1] > 0.0:
-            rest = md.rest_length[s, j]
-            worst = ti.max(worst, ti.abs(edge(st.x, s, j, j + 1).norm() - rest) / rest)
+    for j in range(node_count[s] - 1):
+        if inv_mass[s, j] + inv_mass[s, j + 1] > 0.0:
+            rest = rest_length[s, j]
+            worst = ti.max(worst, ti.abs(edge(x, s, j, j + 1).norm() - rest) / rest)
     return worst
 
 

@@ -23,9 +23,10 @@ from ..rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalar
 from .collisions import head_poses, head_rotate, strand_collide, strand_reset_friction
 from ..world.forces import air_velocity, grab_force
 from ..rods.frames import strand_frames, strand_material_frames
-from ..rods.linalg import thomas_solve
+from ..rods.linalg import block_pentadiagonal_solve, thomas_solve
 from .implicit import (CORRECTION_TOL, MAX_CORRECTIONS, assemble_stiffness, clear_system, length_residual,
-                       record_elastic_change, strand_implicit_pass, strand_implicit_velocities)
+                       record_elastic_change, strand_implicit_assemble, strand_implicit_finish,
+                       strand_implicit_velocities)
 from .strand_contact import (DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS, RESOLVE, STEP_VALUES, ContactGridArgs,
                              contact_pass, resolve_strand_contacts)
 from .pins import HELD_DAMPING, strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
@@ -632,31 +633,15 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
 @ti.func
 def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template(), dr: ti.template(),
                     co: ti.template()):
-    """Symplectic Euler, or the implicit step's predictor and length correction (implicit.py);
+    """Symplectic Euler (the explicit step);
     the root onto the head pose ending the step; pinned nodes min(1, pin_f0 + (k + 1) pin_df) of
-    the way to their targets. Fails if the implicit step's factorisation does."""
+    the way to their targets."""
+    # the implicit step's integration runs in launches of its own (implicit_integrate)
+    ti.static_assert(not fl.implicit, "the implicit step integrates in implicit_integrate")
     now, _ = head_poses(k, fl)
-    bad = 0
-    if ti.static(fl.implicit):
-        # the predictor, then length corrections until the edges are within CORRECTION_TOL (at
-        # most MAX_CORRECTIONS): one at small steps; large steps and tight curls leave the first
-        # correction 1e-5 to 1e-3 off, and the fast projection taking that up in the metric M
-        # kinks the strand (docs/model.md, "The implicit step"). A run-time loop: one copy of
-        # the solve.
-        passes = 0
-        again = 1
-        while again:
-            if strand_implicit_pass(s, k, ti.min(passes, 1), sc.h, sc.drag,
-                                    ti.static(fl.twist_mode != TWIST_NONE), fl, sc, md, st, dr, co):
-                bad = 1
-            if passes == 0:
-                place_root_and_pins(s, k, now, fl, sc, md, st, dr)
-            passes += 1
-            again = passes == 1 or (passes <= MAX_CORRECTIONS and length_residual(s, md, st) > CORRECTION_TOL)
-    else:
-        strand_symplectic_euler(s, sc.h, fl, md, st, dr)
-        place_root_and_pins(s, k, now, fl, sc, md, st, dr)
-    return bad
+    strand_symplectic_euler(s, sc.h, fl, md, st, dr)
+    place_root_and_pins(s, k, now, fl, sc, md, st, dr)
+    return 0
 
 
 @ti.func
@@ -714,6 +699,7 @@ STAGES = (("forces", stage_forces), ("integration", stage_integrate), ("projecti
 STAGE_NAMES = tuple(name for name, _ in STAGES)
 _STAGE_FUNCS = tuple(func for _, func in STAGES)
 PROJECTION = STAGE_NAMES.index("projection")
+INTEGRATION = STAGE_NAMES.index("integration")
 
 
 # ---- the fused driver: many steps in one launch -------------------------------------------------
@@ -764,8 +750,183 @@ def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: in
     nodes are min(1, f0 + (k + 1) df) of the way from start to end (see pins.py); clips: a clip
     holds twist or slides."""
     flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
-    advance_strands(n_steps, flags, *step_scalars(plan, control, h, fraction), bundles.model,
-                    bundles.state, bundles.drive(arrays_), bundles.contacts)
+    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
+            bundles.drive(arrays_), bundles.contacts)
+    if flags.implicit:
+        advance_implicit(bundles, args, n_steps)
+        return
+    advance_strands(n_steps, *args)
+
+
+# ---- the implicit step's driver: its integration in launches of its own -------------------------
+# A kernel's compile time grows faster than its size, and the implicit step's predictor and each
+# of its length corrections hold a block assembly and a solve: one kernel holding them (and the
+# other stages) compiled for minutes (docs/architecture.md, "Compile time"). So each round of
+# the integration (the predictor, then up to MAX_CORRECTIONS corrections) is three launches:
+# assemble, solve (implicit_solve: one kernel for every round, taking only the arrays it reads,
+# since a launch costs ~15 us per array) and take the solution; a correction round runs only
+# while some strand needs it.
+ASSEMBLE, FINISH = range(2)
+
+
+@ti.func
+def implicit_round(s, k, j, node_count: ti.template(), inv_mass: ti.template(), rest_length: ti.template(),
+                   x: ti.template(), counters: ti.template()):
+    """1 if strand s takes round j of step k's implicit solves, else 0: it has not failed in an
+    earlier step of the launch group, and round j is the predictor (0), the first correction (1)
+    or a later one while an edge is off by more than CORRECTION_TOL (x is the same in a round's
+    three launches: only the last moves it)."""
+    bad = counters[s, BAD]
+    take = 0
+    if bad < 0 or bad == k:
+        take = 1
+        if j >= 2:
+            if length_residual(s, node_count, inv_mass, rest_length, x) <= CORRECTION_TOL:
+                take = 0
+    return take
+
+
+@ti.kernel
+def implicit_part(part: ti.template(), correction: ti.template(), forces: ti.template(), k: ti.i32, j: ti.i32,
+                  fl: ti.template(), h: float, k0: float, drag: float, max_speed: float, projection_tol: float,
+                  projection_iterations: ti.i32, twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32,
+                  pin_f0: float, pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs,
+                  more: ti.template()):
+    """The assembly (ASSEMBLE) or the solution's update (FINISH) of round j of step k's implicit
+    integration (k as advance_strands' k) for every strand that takes it (implicit_round);
+    correction: 0 the predictor (round 0), 1 a length correction (implicit.py); forces: the
+    forces stage first (the predictor's ASSEMBLE of a fused step, where it also resets
+    counters[s, BAD] at k = 0). The predictor's FINISH places the root and the pins; a
+    correction's sets more[None] = 1 (a 0-d int field: Taichi caps a kernel's arguments at 64
+    numbers and arrays) where an edge is still off by more than CORRECTION_TOL.
+    One thread per strand."""
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    for s in range(st.x.shape[0]):
+        if ti.static(forces):
+            if k == 0:
+                st.counters[s, BAD] = -1
+        if implicit_round(s, k, j, md.node_count, md.inv_mass, md.rest_length, st.x, st.counters):
+            if ti.static(part == ASSEMBLE):
+                bad = 0
+                if ti.static(forces):
+                    bad += stage_forces(s, k, fl, sc, md, st, dr, co)
+                strand_implicit_assemble(s, k, correction, sc.h, sc.drag,
+                                         ti.static(fl.twist_mode != TWIST_NONE), fl, sc, md, st, dr, co)
+                if bad:
+                    st.counters[s, BAD] = k
+            if ti.static(part == FINISH):
+                strand_implicit_finish(s, correction, sc.h, md, st)
+                if ti.static(correction == 0):
+                    now, _ = head_poses(k, fl)
+                    place_root_and_pins(s, k, now, fl, sc, md, st, dr)
+                else:
+                    if length_residual(s, md.node_count, md.inv_mass, md.rest_length, st.x) > CORRECTION_TOL:
+                        more[None] = 1
+
+
+@ti.kernel
+def implicit_solve(k: ti.i32, j: ti.i32, node_count: Ints1, inv_mass: Scalars2, rest_length: Scalars2, x: Points2,
+                   counters: Ints2, blocks: BlockMats3, block_rhs: BlockVecs2):
+    """Solve the systems of round j of step k (implicit_part's ASSEMBLE) in place
+    (linalg.block_pentadiagonal_solve); counters[s, BAD] = k where a factorisation failed (a
+    non-finite state). One thread per strand."""
+    for s in range(x.shape[0]):
+        if implicit_round(s, k, j, node_count, inv_mass, rest_length, x, counters):
+            if block_pentadiagonal_solve(s, node_count[s], blocks, block_rhs):
+                counters[s, BAD] = k
+
+
+@ti.kernel
+def implicit_stages(first: ti.template(), last: ti.template(), k: ti.i32, fl: ti.template(), h: float, k0: float,
+                    drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
+                    twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+                    md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
+    """STAGES first..last-1 of step k (after the implicit integration) for every strand that has
+    not failed in an earlier step; counters[s, BAD] = k where one fails. One thread per strand."""
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    for s in range(st.x.shape[0]):
+        if st.counters[s, BAD] < 0 or st.counters[s, BAD] == k:
+            bad = 0
+            for stage in ti.static(_STAGE_FUNCS[first:last]):
+                bad += stage(s, k, fl, sc, md, st, dr, co)
+            if bad:
+                st.counters[s, BAD] = k
+
+
+_CORRECTION_FLAG = []
+
+
+def correction_flag():
+    """The 0-d int field implicit_part's FINISH raises when a strand needs another correction
+    (made on first use: a field needs Taichi initialised)."""
+    if not _CORRECTION_FLAG:
+        _CORRECTION_FLAG.append(ti.field(ti.i32, shape=()))
+    return _CORRECTION_FLAG[0]
+
+
+def implicit_integrate(bundles: StepBundles, args: tuple, k: int, forces: bool) -> None:
+    """Step k's implicit integration (with `forces`, the forces stage first): the predictor,
+    then rounds of length corrections while a strand needs one (implicit_round), at most
+    MAX_CORRECTIONS; args: implicit_part's from fl on."""
+    model, state = bundles.rods
+    arrays_ = (model.node_count, model.inv_mass, model.rest_length, state.x, state.counters, state.blocks,
+               state.block_rhs)
+    more = correction_flag()
+    for j in range(MAX_CORRECTIONS + 1):
+        if j >= 2 and not more[None]:
+            break
+        more[None] = 0
+        correction = min(j, 1)
+        implicit_part(ASSEMBLE, correction, forces and j == 0, k, j, *args, more)
+        implicit_solve(k, j, *arrays_)
+        implicit_part(FINISH, correction, False, k, j, *args, more)
+
+
+def advance_implicit(bundles: StepBundles, args: tuple, n_steps: int) -> None:
+    """n_steps implicit steps in launches (as advance_strands' steps); args: implicit_part's
+    from fl on."""
+    for k in range(n_steps):
+        implicit_integrate(bundles, args, k, True)
+        implicit_stages(INTEGRATION + 1, len(STAGES), k, *args)
+
+
+def run_stage_range(bundles: StepBundles, first: int, last: int, args: tuple) -> None:
+    """run_stages(first, last, *args), with the implicit step's integration (args[0].implicit)
+    in launches of its own (implicit_integrate)."""
+    if not (args[0].implicit and first <= INTEGRATION < last):
+        run_stages(first, last, *args)
+        return
+    if first < INTEGRATION:
+        run_stages(first, INTEGRATION, *args)
+    implicit_integrate(bundles, args, 0, False)
+    if INTEGRATION + 1 < last:
+        run_stages(INTEGRATION + 1, last, *args)
+
+
+def implicit_steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int,
+                                       grid, settings, moving_head: bool, pins=None) -> float:
+    """n_steps implicit steps with strand contact, in launches: per step the forces, the
+    integration and the projection, the contact passes (strand_contact.resolve_strand_contacts,
+    each followed by the projection stage again), then velocities, frames and twist, as
+    steps_with_strand_contact does in one launch. Returns the deepest depth [m] a step's last
+    pass found (0 if none)."""
+    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
+    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
+            bundles.drive(arrays_), bundles.contacts)
+    model, state = bundles.rods
+    deepest = 0.0
+    for k in range(n_steps):
+        implicit_integrate(bundles, args, k, True)
+        implicit_stages(PROJECTION, PROJECTION + 1, k, *args)
+        depth = resolve_strand_contacts(grid, settings, model, state,
+                                        lambda: implicit_stages(PROJECTION, PROJECTION + 1, k, *args))  # noqa: B023
+        deepest = max(deepest, depth)
+        implicit_stages(PROJECTION + 1, len(STAGES), k, *args)
+    return deepest
 
 
 # ---- the staged driver: stages in separate launches (per-stage timings; hair-hair interaction) --
@@ -810,19 +971,19 @@ def kmoch_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: f
     if timers is None:
         first = 0
         if interaction is not None:
-            run_stages(0, 1, *args)
+            run_stage_range(bundles, 0, 1, args)
             interaction(model, state, control, h)
             first = 1
         if strand_contact is None:
-            run_stages(first, len(STAGES), *args)
+            run_stage_range(bundles, first, len(STAGES), args)
             return
-        run_stages(first, PROJECTION + 1, *args)
+        run_stage_range(bundles, first, PROJECTION + 1, args)
         strand_contact(lambda: run_stages(PROJECTION, PROJECTION + 1, *args))
-        run_stages(PROJECTION + 1, len(STAGES), *args)
+        run_stage_range(bundles, PROJECTION + 1, len(STAGES), args)
         return
     for k, (name, _) in enumerate(STAGES):
         with timers(name):
-            run_stages(k, k + 1, *args)
+            run_stage_range(bundles, k, k + 1, args)
         if k == 0 and interaction is not None:
             with timers("hair-hair"):
                 interaction(model, state, control, h)
@@ -950,6 +1111,13 @@ def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: 
     """n_steps steps of h with strand contact in one launch on one thread
     (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
     pins as in `advance`."""
+    if plan.integrator == "implicit":
+        depth = implicit_steps_with_strand_contact(bundles, plan, control, h, n_steps, grid, settings, moving_head,
+                                                   pins)
+        params = grid.params.to_numpy()
+        params[DEPTH_MAX] = max(params[DEPTH_MAX], depth)
+        grid.params.from_numpy(params)
+        return
     flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
     write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
                       grid.T - 1, settings.friction, grid.allowed_depth(settings.tolerance), settings.iterations,
@@ -965,6 +1133,8 @@ def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: f
     projection stage) and the last stage, in launches of their own. grid a
     strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
     depth [m] the last of those further passes found (0 if none ran)."""
+    if plan.integrator == "implicit":
+        return implicit_steps_with_strand_contact(bundles, plan, control, h, 1, grid, settings, False, pins)
     flags, arrays_, fraction = launch_flags(plan, control, pins)
     scalars = step_scalars(plan, control, h, fraction)
     write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction,
