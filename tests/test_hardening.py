@@ -17,7 +17,7 @@ import pytest
 import taichi_hair as th
 from taichi_hair.hair.hairfile import HairFileError
 from taichi_hair.app.runner import Shot
-from taichi_hair.solver.step import STALL_BELOW
+from taichi_hair.solver.step.plan import STALL_BELOW
 
 
 # ---- 1. a root exactly on a head's surface keeps that head as a collider ----------------------

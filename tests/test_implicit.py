@@ -418,7 +418,7 @@ def rotation_about_z(angle):
 def test_integrator_is_checked_and_the_implicit_stage_compiles_only_when_chosen():
     with pytest.raises(ValueError, match="integrator must be one of"):
         th.Simulator(th.Groom.straight(), th.Material(), integrator="rk4")
-    from taichi_hair.solver.step import compiled_variants
+    from taichi_hair.solver.step.fused import compiled_variants
     sim = th.Simulator(th.Groom.straight(n_nodes=8), th.Material())
     sim.step(2)
     assert any(not v["implicit"] for v in compiled_variants())

@@ -66,12 +66,21 @@ def test_modules_live_in_their_layer():
 
 
 def layers_imported(path: Path) -> set:
-    """The layers (taichi_hair subpackages) a module inside a layer imports, lazily or not."""
+    """The layers (taichi_hair subpackages) a module inside a layer imports, lazily or not; a
+    relative import is resolved from the module's own place, at any depth (solver/step/x.py's
+    `from ...rods` is rods)."""
     found = set()
+    try:
+        parts = path.resolve().relative_to(PACKAGE).parts[:-1]  # the module's package below taichi_hair
+    except ValueError:
+        parts = ("layer",)  # a module outside the package: read as one inside a layer
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.ImportFrom):
-            if node.level == 2 and node.module:
-                found.add(node.module.split(".")[0])
+            if node.level and node.module:
+                base = parts[: len(parts) - (node.level - 1)] if node.level - 1 <= len(parts) else ()
+                target = base + tuple(node.module.split("."))
+                if target:
+                    found.add(target[0])
             elif node.level == 0 and node.module and node.module.startswith("taichi_hair."):
                 found.add(node.module.split(".")[1])
     return found & set(LAYERS)
@@ -80,9 +89,9 @@ def layers_imported(path: Path) -> set:
 def test_layers_import_only_earlier_layers():
     bad = []
     for rank, layer in enumerate(LAYERS):
-        for path in sorted((PACKAGE / layer).glob("*.py")):
+        for path in sorted((PACKAGE / layer).rglob("*.py")):
             later = layers_imported(path) - set(LAYERS[:rank + 1])
-            bad += [f"{layer}/{path.name} imports {sorted(later)}"] if later else []
+            bad += [f"{path.relative_to(PACKAGE)} imports {sorted(later)}"] if later else []
     assert bad == []
 
 
@@ -90,3 +99,5 @@ def test_layer_check_detects_an_offender(tmp_path):
     module = tmp_path / "rod_like.py"
     module.write_text("def f():\n    from ..solver.step import advance\n    return advance\n")
     assert layers_imported(module) == {"solver"}
+    real = sorted((PACKAGE / "solver" / "step").glob("*.py"))  # a nested package's `from ...rods`
+    assert real and any("rods" in layers_imported(p) for p in real)

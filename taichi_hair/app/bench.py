@@ -156,7 +156,7 @@ def run_bench(arch: str, precision: str, strands, repeats: int, stage_steps: int
 
 
 def format_table(result: dict) -> str:
-    from ..solver.step import STAGE_NAMES
+    from ..solver.step.stages import STAGE_NAMES
     stage_names = list(STAGE_NAMES)
     lines = [f"taichi_hair bench: arch {result['arch']}, precision {result['precision']}, "
              f"dt {result['dt'] * 1e3:g} ms, frame 1/60 s, twist {result['twist']}",

@@ -25,7 +25,7 @@ def to_head(head: ti.template(), k, p):
 
 @ti.func
 def head_poses(k, fl: ti.template()):
-    """(now, prev): the head pose indices ending and starting step k of a launch (step.py's module doc)."""
+    """(now, prev): the head pose indices ending and starting step k of a launch (the step package's doc)."""
     now = 1
     prev = 0
     if ti.static(fl.moving_head):

@@ -1,6 +1,6 @@
 """How a Simulator launches its steps: one driver, chosen once when the simulator is built.
 
-Every driver runs `count` steps of h of the same stages (solver/step.py STAGES) and differs only
+Every driver runs `count` steps of h of the same stages (solver/step/stages.py STAGES) and differs only
 in how they are grouped into kernel launches:
 
 - `FusedDriver`: many steps per launch, one thread per strand (`step.advance`): the default.
@@ -13,7 +13,8 @@ in how they are grouped into kernel launches:
 """
 
 from .control import MAX_STEPS_PER_LAUNCH
-from .step import SMALL_CONTACT_SCENE, advance, kmoch_step, step_with_strand_contact, steps_with_strand_contact
+from .step.contact import SMALL_CONTACT_SCENE, step_with_strand_contact, steps_with_strand_contact
+from .step.launch import advance, staged_step
 from .strand_contact import resolve_strand_contacts
 
 
@@ -51,7 +52,7 @@ class StagedDriver:
 
     def launch(self, h: float, count: int, moving_head: bool, pins) -> None:
         model, state = self.bundles.rods
-        kmoch_step(self.bundles, self.plan, model, state, self.control, h, self.timers,
+        staged_step(self.bundles, self.plan, model, state, self.control, h, self.timers,
                    self.interaction.stage if self.interaction is not None else None, pins,
                    self.contact.resolve if self.contact is not None else None)
 

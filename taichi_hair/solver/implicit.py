@@ -26,7 +26,7 @@ Held nodes (the root, pins) keep identity rows: the root placement and pins set 
 import taichi as ti
 
 from ..rods.arrays import edge, mat_block, point, step_displacement, vec3, vec3d, vec_block
-from ..rods.linalg import block_pentadiagonal_solve, product, thomas_solve
+from ..rods.linalg import product, thomas_solve
 from ..rods.modes import Root
 from ..rods.state import HIST_CHANGE, HIST_DX, HIST_ELASTIC, HIST_V
 from ..rods.frames import material_directors
@@ -379,7 +379,7 @@ def strand_implicit_assemble(s, k, correction: ti.template(), h, drag, twist_fre
     """The system of one of the step's solves (module doc) in st.blocks, st.block_rhs, for
     linalg.block_pentadiagonal_solve and then strand_implicit_finish: the predictor, or a length
     correction (repeated while an edge is off by more than CORRECTION_TOL), chosen at compile
-    time. Assembly, solve and finish each run in kernels of their own (step.py, the implicit
+    time. Assembly, solve and finish each run in kernels of their own (step/implicit_launches.py, the implicit
     driver): they dominate the step's compile time, and a kernel's compile time grows faster
     than its size.
 

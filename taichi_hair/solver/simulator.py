@@ -1,4 +1,4 @@
-"""The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (step.py) under a control
+"""The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (the step package) under a control
 (head, air, colliders, touch, pins), with the stability bound and its substeps, rollback on
 blow-up, and checkpoints. Units: SI throughout.
 """
@@ -27,11 +27,14 @@ from .strand_contact import contact_grid
 from .pins import PinTable
 from ..rods.state import COUNTERS
 from .checkpoint import load_state, pose_rows, save_state
-from .system import RodSystem
 from ..validation import is_integer, is_real
 from .drivers import StagedDriver, StrandContactDriver, choose_driver
-from .step import (FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, SMALL_CONTACT_SCENE, StepPlan, place_roots,
-                   project_once, seed_history, strand_mechanical_energy)
+from .step.contact import SMALL_CONTACT_SCENE
+from .step.fused import place_roots
+from .step.implicit_launches import seed_history
+from .step.launch import project_once
+from .step.plan import FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan
+from .system import RodSystem, strand_mechanical_energy
 
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 

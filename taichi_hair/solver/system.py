@@ -5,16 +5,23 @@ sag-free solve and the cosseratbench plugin probe one. Units: SI throughout."""
 import math
 
 import numpy as np
+import taichi as ti
 
 from ..rods import arrays
+from ..rods.arrays import Ints1, point, Points2, Scalars1, Scalars2, Vec3s1, Vec3s2
 from ..rods.frames import update_frames, update_material_frames
 from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
-from ..rods.rod import first_node, strand_elastic_energy, theta_gradient
-from ..runtime import ensure_init, precision
+from ..rods.modes import Root, Twist
+from ..rods.rod import elastic_forces, first_node, strand_elastic_energy, theta_gradient
 from ..rods.state import COUNTERS, build
-from .step import StepBundles, run_twist_update, stiffness_blocks, total_elastic_forces
+from ..rods.twist import held_twist_forces, kmoch_forces
+from ..runtime import ensure_init, precision
 from ..world.options import Environment, SolverOptions, split_keywords
-from ..rods.twist import held_twist_forces
+from .implicit import assemble_stiffness, clear_system
+from .pins import strand_hold_clip_twist
+from .step.bundles import DriveArgs, ModelArgs, StateArgs, StepBundles, StepScalars
+from .step.plan import BAD, StageFlags
+from .step.stages import strand_twist
 
 MAX_SET_STRETCH = 2.0  # set_positions: an inextensible edge at most this x its rest length
 
@@ -302,3 +309,76 @@ def check_strand_geometry(x, node_counts):
         angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_turn[s, i]))))
         raise ValueError(f"positions: strand {s} turns by {angle:.1f} degrees at node {i + 1}; turning angles "
                          f"must be <= {MAX_TURNING_ANGLE_DEG:g} degrees (the strand folds back on itself)")
+
+
+# ---- kernels over the rods outside a step: twist update, elastic forces and energy, stiffness ----
+
+@ti.kernel
+def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: ti.i32, md: ModelArgs,
+                        st: StateArgs, dr: DriveArgs):
+    """The twist stage alone (twist-holding clips at their latest angles, head pose 1);
+    counters[s, BAD] = 0 where it failed, else -1."""
+    sc = StepScalars(h=1.0, k0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
+                     twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=1.0,
+                     pin_df=0.0)
+    for s in range(st.theta.shape[0]):
+        st.counters[s, BAD] = -1
+        if ti.static(fl.clips):
+            strand_hold_clip_twist(s, 1.0, md.node_count, dr.pin_mode, dr.clip, dr.head, 1, st.bishop_u,
+                                   st.bishop_v, st.theta)
+        if strand_twist(s, fl, sc, md, st, dr):
+            st.counters[s, BAD] = 0
+
+
+def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
+    """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
+    Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands).
+    rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
+    md, st = model, state
+    kappa = md.rest_kappa if rest_kappa is None else rest_kappa
+    elastic_forces(md.clamp, md.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
+                   st.root_u, kappa, md.voronoi, md.stiffness, st.force)
+    if twist == "kmoch":
+        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
+                     st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+
+
+def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int,
+                     clip_arrays=None):
+    """The twist stage alone (no-op for "none"); material frames follow the new angles.
+    clip_arrays: the pin table's (mode, start, end, clip) when clips hold twist (else None)."""
+    if twist == "none":
+        return
+    flags = StageFlags(external=False, wind_field=False, twist_mode=Twist.parse("twist", twist).code, user=False,
+                       moving_head=False, contacts=False, mesh=False, touch=False,
+                       pins=clip_arrays is not None, root_mode=Root.parse("root", root).code, clips=clip_arrays is not None,
+                       rotation=bundles.rods[0].rotation)
+    update_twist_kernel(flags, twist_tol, twist_iterations, bundles.model, bundles.state,
+                        bundles.twist_drive(clip_arrays))
+
+
+@ti.kernel
+def strand_mechanical_energy(node_count: Ints1, mass: Scalars2, inv_mass: Scalars2, x: Points2,
+                             v: Vec3s2, loads: Vec3s1, kinetic: Scalars1, potential: Scalars1):
+    """kinetic[s] = sum 1/2 m |v|^2, potential[s] = -sum m g . x [J] over the free nodes (the root
+    edge is driven by the head, not by forces). One thread per strand."""
+    for s in range(x.shape[0]):
+        k = 0.0
+        p = 0.0
+        for i in range(node_count[s]):
+            if inv_mass[s, i] > 0.0:
+                k += 0.5 * mass[s, i] * v[s, i].dot(v[s, i])
+                p -= mass[s, i] * loads[0].dot(point(x, s, i))
+        kinetic[s] = k
+        potential[s] = p
+
+
+@ti.kernel
+def stiffness_blocks(clamp: ti.template(), twist_free: ti.template(), rotation: ti.template(), md: ModelArgs,
+                     st: StateArgs):
+    """st.blocks = the implicit step's Gauss-Newton stiffness of every strand over the free
+    nodes' positions [N/m] and the free edges' angles (implicit.assemble_stiffness; blocks as
+    in linalg.block_pentadiagonal_solve) at the current frames. One thread per strand."""
+    for s in range(st.x.shape[0]):
+        clear_system(s, md.node_count[s], True, st)
+        assemble_stiffness(s, clamp, twist_free, rotation, 1.0, md, st, 0)

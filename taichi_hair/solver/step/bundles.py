@@ -1,0 +1,107 @@
+"""The kernels' arguments as bundles (Taichi argpacks of ndarrays) and the launch's scalars."""
+
+import taichi as ti
+
+from ...rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars2, Scalars3, Vec3s1,
+                            Vec3s2, Vec3s3, Vec4s1, Vec4s2)
+from .plan import stage_flags, StepPlan
+
+
+ModelArgs = ti.types.argpack(
+    node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
+    stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
+
+
+StateArgs = ti.types.argpack(
+    x=Points2, v=Vec3s2, x_prev=Points2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
+    bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
+    tension=Scalars2, blocks=BlockMats3, block_rhs=BlockVecs2)
+
+
+DriveArgs = ti.types.argpack(
+    head=Vec3s2, loads=Vec3s1, gusts=Vec3s1, modes=Vec3s2, user_force=Vec3s2, tools=Vec4s1,
+    tool_points=Vec3s2, pin_mode=Ints2, pin_start=Vec3s2, pin_end=Vec3s2, clip=Vec3s3)
+
+
+ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
+
+
+StepScalars = ti.types.struct(
+    h=float, k0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
+    twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
+
+
+class StepBundles:
+    """One simulator's kernel bundles, built once: model and state from the rods, contacts and
+    drive from the control once `bind` gives it; the drive bundle is rebuilt only when user
+    forces or pins first get their arrays."""
+
+    def __init__(self, model, state):
+        md, st = model, state
+        self.model = ModelArgs(node_count=md.node_count, mass=md.mass, inv_mass=md.inv_mass,
+                               rest_length=md.rest_length, voronoi=md.voronoi, stiffness=md.stiffness,
+                               rest_kappa=md.rest_kappa, rest_twist=md.rest_twist, root_frame=md.root_frame)
+        diag, upper, rhs = st.scratch_edge
+        self.state = StateArgs(x=st.x, v=st.v, x_prev=st.x_prev, dx=st.dx, force=st.force, theta=st.theta,
+                               bishop_u=st.bishop_u, bishop_v=st.bishop_v, m1=st.m1, m2=st.m2, kb=st.kb,
+                               root_t=st.root_t, root_u=st.root_u, diag=diag, upper=upper, rhs=rhs,
+                               counters=st.counters, residuals=st.residuals, history=st.history,
+                               tension=st.tension, blocks=st.blocks, block_rhs=st.block_rhs)
+        self._state, self._model, self._control, self.contacts = st, md, None, None
+        self._drive_key, self._drive = None, None
+
+    def bind(self, control) -> None:
+        """Take the control arrays (control.Control) that drive the steps."""
+        c = control
+        self._control = c
+        self.contacts = ContactArgs(kinds=c.kinds, geometry=c.geometry, params=c.params, sdf=c.sdf,
+                                    sdf_meta=c.sdf_meta)
+        self._drive_key = None
+
+    def drive(self, pins=None):
+        """The drive bundle; pins: None or the (mode, start, end, clip) arrays of the pin table
+        (an unused flag's arrays are placeholders of the right type)."""
+        st, c = self._state, self._control
+        key = (id(c.user_force), None if pins is None else tuple(id(a) for a in pins))
+        if key != self._drive_key:
+            mode, start, end, clip = pins if pins is not None else (st.counters, st.dx, st.dx, st.history)
+            self._drive = DriveArgs(head=c.head, loads=c.loads, gusts=c.gusts, modes=c.modes,
+                                    user_force=c.user_force if c.user_force is not None else st.force,
+                                    tools=c.tools, tool_points=c.tool_points, pin_mode=mode,
+                                    pin_start=start, pin_end=end, clip=clip)
+            self._drive_key = key
+        return self._drive
+
+    @property
+    def rods(self):
+        """(RodModel, RodState): the arrays the bundles hold."""
+        return self._model, self._state
+
+    def twist_drive(self, pins=None):
+        """The drive bundle for the twist stage alone: `drive(pins)` once a control is bound,
+        else placeholders of the right types (a RodSystem without a simulator has no clips)."""
+        if self._control is not None:
+            return self.drive(pins)
+        st, md = self._state, self._model
+        return DriveArgs(head=st.dx, loads=st.root_t, gusts=st.root_t, modes=st.dx, user_force=st.force,
+                         tools=md.stiffness, tool_points=st.dx, pin_mode=st.counters, pin_start=st.dx,
+                         pin_end=st.dx, clip=st.history)
+
+
+def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
+    """The launch's scalars, in StepScalars' field order: step h [s], the launch's first step index
+    control.first_step (k0: time k0 h; a whole number, exact in float32 up to 2^24 steps); pins
+    pin_fraction = (f0, df)."""
+    return (h, float(control.first_step), control.drag, control.max_speed, plan.projection_tol,
+            plan.projection_iterations, plan.twist_tol, plan.twist_iterations, plan.n_analytic,
+            pin_fraction[0], pin_fraction[1])
+
+
+def launch_flags(plan: StepPlan, control, pins, moving_head: bool = False):
+    """(flags, pin arrays or None, (f0, df)) of a launch; pins: None, or (pin_mode, pin_start,
+    pin_end, clip, f0, df, clips) as `advance` takes them."""
+    arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
+    flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
+                        pins=pins is not None, clips=clips)
+    return flags, arrays_, fraction

@@ -1,0 +1,174 @@
+"""Launches of steps with strand-strand contact: the stages and a contact pass in one kernel."""
+
+import taichi as ti
+
+from ...rods.arrays import Scalars1
+from ..strand_contact import (contact_pass, ContactGridArgs, DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS,
+                              RESOLVE, resolve_strand_contacts, STEP_VALUES)
+from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, StateArgs, step_scalars, StepBundles,
+                      StepScalars)
+from .fused import run_stages
+from .implicit_launches import implicit_steps_with_strand_contact
+from .plan import BAD, StepPlan
+from .stages import _STAGE_FUNCS, PROJECTION, stage_frames_twist, stage_project, STAGES
+
+
+@ti.func
+def read_step_values(params: ti.template()):
+    """(StepScalars, self_contact, hash mask, friction, allowed depth [m], contact passes, steps)
+    from params[STEP_VALUES:], as write_step_values put them."""
+    v = ti.static(STEP_VALUES)
+    sc = StepScalars(h=params[v + 0], k0=params[v + 1], drag=params[v + 2], max_speed=params[v + 3],
+                     projection_tol=params[v + 4], projection_iterations=ti.cast(params[v + 5], ti.i32),
+                     twist_tol=params[v + 6], twist_iterations=ti.cast(params[v + 7], ti.i32),
+                     n_analytic=ti.cast(params[v + 8], ti.i32), pin_f0=params[v + 9], pin_df=params[v + 10])
+    return (sc, ti.cast(params[v + 11], ti.i32), ti.cast(params[v + 12], ti.i32), params[v + 13], params[v + 14],
+            ti.cast(params[v + 15], ti.i32), ti.cast(params[v + 16], ti.i32))
+
+
+@ti.kernel
+def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(), md: ModelArgs, st: StateArgs,
+                                dr: DriveArgs, co: ContactArgs, cg: ContactGridArgs):
+    """One step of h with strand-strand contact, in one launch when one contact pass is enough
+    (head poses [prev, now]): the stages up to the projection per strand, a contact pass
+    (strand_contact.contact_pass) and, if it found contacts, the projection stage again; if
+    that pass found none, or all within the allowed depth, the step is done (grid_params[DONE])
+    and velocities, frames and twist follow here; otherwise the caller runs further passes and
+    the last stage (step_with_strand_contact). One pass, not a loop of them: every pass unrolled
+    into the kernel multiplies its compile time. grid_params[DEPTH_MAX] keeps the deepest
+    overlap a step's last pass found. counters[s, BAD] = 0 where a stage failed, else -1. Every
+    loop is a top-level loop of the kernel (parallel), so the pass sees every strand's
+    corrections. The scalars come in grid_params[STEP_VALUES:] (write_step_values): Taichi's cap
+    of 64 arguments leaves no room for them."""
+    sc, self_contact, mask, friction, allowed, _, _ = read_step_values(cg.grid_params)
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+        for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+            if stage(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
+    contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx, self_contact,
+                 mask, friction)
+    cg.grid_params[DONE] = 1.0
+    project = 0
+    if cg.grid_counters[PAIRS] > 0:
+        project = 1
+        cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], cg.grid_params[MAX_PENETRATION])
+        if cg.grid_params[MAX_PENETRATION] > allowed:
+            cg.grid_params[DONE] = 0.0
+    for s in range(st.x.shape[0] * project):
+        if stage_project(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
+    done = ti.cast(cg.grid_params[DONE], ti.i32)
+    for s in range(st.x.shape[0] * done):
+        if stage_frames_twist(s, 0, fl, sc, md, st, dr, co):
+            st.counters[s, BAD] = 0
+
+
+@ti.kernel
+def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.template(), md: ModelArgs,
+                                      st: StateArgs, dr: DriveArgs, co: ContactArgs, cg: ContactGridArgs):
+    """n_steps steps of h with strand-strand contact in one launch, on one thread: for scenes
+    small enough (SMALL_CONTACT_SCENE nodes) that the launches of a step per launch, not the
+    work, would set the cost. Each step: the stages up to the projection for every strand, then
+    up to `iterations` contact passes each followed by the projection stage, stopping after a
+    pass that found nothing or nothing deeper than allowed, then velocities, frames and twist.
+    Head poses and pins as in advance_strands (fl.moving_head: one pose per step). counters[s,
+    BAD] = the step where a strand failed (the launch stops there), -1 if none. Scalars in
+    grid_params[STEP_VALUES:] (write_step_values)."""
+    sc, self_contact, mask, friction, allowed, iterations, n_steps = read_step_values(cg.grid_params)
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+    ti.loop_config(serialize=True)
+    for k in range(n_steps):
+        failed = 0
+        for s in range(st.x.shape[0]):
+            for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+                if stage(s, k, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = k
+                    failed = 1
+        depth = 0.0
+        for _ in range(iterations):
+            contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx,
+                         self_contact, mask, friction)
+            if cg.grid_counters[PAIRS] == 0:
+                break
+            depth = cg.grid_params[MAX_PENETRATION]
+            for s in range(st.x.shape[0]):
+                if stage_project(s, k, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = k
+                    failed = 1
+            if depth <= allowed:
+                break
+        cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], depth)
+        for s in range(st.x.shape[0]):
+            if stage_frames_twist(s, k, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = k
+                failed = 1
+        if failed:
+            break
+
+
+@ti.kernel
+def write_step_values(params: Scalars1, h: float, k0: float, drag: float, max_speed: float,
+                      projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
+                      twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+                      self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float, iterations: ti.i32,
+                      n_steps: ti.i32):
+    """params[STEP_VALUES:] = StepScalars' fields in order, then self_contact, the hash mask,
+    friction, the allowed depth [m], the contact passes per step and the steps of the launch
+    (the fused kernels read them)."""
+    values = ti.Vector([h, k0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
+                        twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed,
+                        iterations, n_steps], dt=float)
+    for i in ti.static(range(17)):
+        params[STEP_VALUES + i] = values[i]
+
+
+SMALL_CONTACT_SCENE = 4096  # nodes: up to here a launch runs many contact steps on one thread
+
+
+def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, grid,
+                              settings, moving_head: bool, pins=None) -> None:
+    """n_steps steps of h with strand contact in one launch on one thread
+    (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
+    pins as in `advance`."""
+    if plan.integrator == "implicit":
+        depth = implicit_steps_with_strand_contact(bundles, plan, control, h, n_steps, grid, settings, moving_head,
+                                                   pins)
+        params = grid.params.to_numpy()
+        params[DEPTH_MAX] = max(params[DEPTH_MAX], depth)
+        grid.params.from_numpy(params)
+        return
+    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
+    write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
+                      grid.T - 1, settings.friction, grid.allowed_depth(settings.tolerance), settings.iterations,
+                      n_steps)
+    advance_small_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state,
+                                      bundles.drive(arrays_), bundles.contacts, grid.args())
+
+
+def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, grid, settings,
+                             pins=None) -> float:
+    """One step of h with strand contact: `advance_with_strand_contact`, then, if its pass left
+    contacts deeper than allowed, up to settings.iterations - 1 more passes (each with the
+    projection stage) and the last stage, in launches of their own. grid a
+    strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
+    depth [m] the last of those further passes found (0 if none ran)."""
+    if plan.integrator == "implicit":
+        return implicit_steps_with_strand_contact(bundles, plan, control, h, 1, grid, settings, False, pins)
+    flags, arrays_, fraction = launch_flags(plan, control, pins)
+    scalars = step_scalars(plan, control, h, fraction)
+    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction,
+                      grid.allowed_depth(settings.tolerance), settings.iterations, 1)
+    drive = bundles.drive(arrays_)
+    advance_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state, drive,
+                                bundles.contacts, grid.args())
+    if grid.params.to_numpy()[DONE] > 0.5:
+        return 0.0
+    args = (flags, *scalars, bundles.model, bundles.state, drive, bundles.contacts)
+    model, state = bundles.rods
+    depth = resolve_strand_contacts(grid, settings, model, state,
+                                    lambda: run_stages(PROJECTION, PROJECTION + 1, *args),
+                                    passes=settings.iterations - 1)
+    run_stages(PROJECTION + 1, len(STAGES), *args)
+    return depth

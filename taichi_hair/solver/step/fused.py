@@ -1,0 +1,78 @@
+"""The fused and staged launches: many steps per launch, or the stages in launches of their own."""
+
+from dataclasses import asdict
+
+import taichi as ti
+
+from ...rods.arrays import Ints2, Vec3s1, Vec3s2
+from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepScalars
+from .plan import BAD, StageFlags
+from .stages import _STAGE_FUNCS, strand_place_root
+
+
+@ti.kernel
+def advance_strands(n_steps: int, fl: ti.template(), h: float, k0: float, drag: float, max_speed: float,
+                    projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
+                    twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+                    md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
+    """n_steps steps of sc.h [s] from step index sc.k0 (time k0 h) for every strand (head poses as in the module
+    doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
+    step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    for s in range(st.x.shape[0]):
+        st.counters[s, BAD] = -1
+        for k in range(n_steps):
+            bad = 0
+            for stage in ti.static(_STAGE_FUNCS):
+                bad += stage(s, k, fl, sc, md, st, dr, co)
+            if bad:
+                st.counters[s, BAD] = k
+                break
+
+
+def compiled_variants() -> list[dict]:
+    """The stage flags of every compiled instance of the fused kernel in this process: a stage
+    whose flag is False in every instance was never compiled (nor run). Reads Taichi's
+    template-instance table."""
+    keys = advance_strands._primal.mapper.mapping
+    return [asdict(next(part for part in key if isinstance(part, StageFlags))) for key in keys]
+
+
+
+
+@ti.kernel
+def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: float, k0: float,
+               drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
+               twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float,
+               pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
+    """Stages first..last-1 of STAGES for one step of every strand; counters[s, BAD] is reset
+    by the launch that runs the first stage and set to 0 where a stage failed. One thread per
+    strand."""
+    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
+                     projection_iterations=projection_iterations, twist_tol=twist_tol,
+                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    for s in range(st.x.shape[0]):
+        if ti.static(first == 0):
+            st.counters[s, BAD] = -1
+        for stage in ti.static(_STAGE_FUNCS[first:last]):
+            if stage(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
+
+
+@ti.kernel
+def place_roots(head: Vec3s2, root_frame: Vec3s2, x: ti.types.ndarray(ndim=2), root_t: Vec3s1, root_u: Vec3s1):
+    """Root nodes and root reference frames at head pose 1. One thread per strand."""
+    for s in range(x.shape[0]):
+        strand_place_root(s, head, 1, root_frame, x, root_t, root_u, 0)
+
+
+
+
+@ti.kernel
+def clear_bad(counters: Ints2):
+    for s in range(counters.shape[0]):
+        counters[s, BAD] = -1
+
+
