@@ -33,8 +33,8 @@ from ..rods.arrays import Ints1, Ints2, Points2, Scalars1, Scalars2, Vec3s2, edg
 
 ivec3 = ti.types.vector(3, ti.i32)
 IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
-# a grid's arrays as one kernel argument (the fused step's: Taichi caps a kernel's arguments at 64,
-# counting each argpack and each of its members, so this one has room for 12 and no scalars:
+# a grid's arrays as one kernel argument (the fused contact step's: Taichi caps a kernel's
+# arguments, counting each argpack and each of its members, so it takes no scalars:
 # params[STEP_VALUES:] carries them; member names must differ from every other bundle's, which
 # Taichi 1.7 confuses: co.params, st.counters)
 ContactGridArgs = ti.types.argpack(
@@ -49,7 +49,8 @@ MEASURE, RESOLVE, RECORD = 0, 1, 2
 # and DEPTH_MAX belong to the fused step, step.advance_with_strand_contact)
 # (MAX_BULGE: the largest distance from a segment's chord to its curve, arc_offset's bound)
 MAX_LENGTH, MAX_RADIUS, CELL, MAX_PENETRATION, PAIR_COUNT, DONE, DEPTH_MAX, MAX_BULGE = range(8)
-STEP_VALUES = 8  # params[8:25]: the fused step's scalars (step.write_step_values)
+STEP_VALUES = 8  # params[8:]: the fused contact step's values by name (step/contact.py SLOT)
+CONTACT_GRID_VALUES = 17  # how many: the launch's 11 scalars and the contact step's 6
 # slots of the integer counter array
 PAIRS, CANDIDATES, RECORDED = 0, 1, 2
 
@@ -507,8 +508,9 @@ class ContactGrid:
         self.node_count = arrays.ints((self.S,), node_counts)
         self.radius = arrays.scalars((self.S,), radius)
         self.gap = arrays.ints((self.S,), 2)
-        self.params = arrays.scalars((STEP_VALUES + 17,))
-        self.params.from_numpy(np.array([0.0, radius.max()] + [0.0] * (STEP_VALUES + 15), dtype=arrays.np_float()))
+        self.params = arrays.scalars((STEP_VALUES + CONTACT_GRID_VALUES,))
+        self.params.from_numpy(np.array([0.0, radius.max()] + [0.0] * (STEP_VALUES + CONTACT_GRID_VALUES - 2),
+                                        dtype=arrays.np_float()))
         self.counters = arrays.ints((3,), 0)
         self.seg_cell = ti.Vector.ndarray(3, ti.i32, (self.G,))
         self.seg_bucket = arrays.ints((self.G,), -1)

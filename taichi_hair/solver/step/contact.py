@@ -4,26 +4,35 @@ import taichi as ti
 
 from ...rods.arrays import Scalars1
 from ..strand_contact import (contact_pass, ContactGridArgs, DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS,
-                              RESOLVE, resolve_strand_contacts, STEP_VALUES)
-from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, StateArgs, step_scalars, StepBundles,
-                      StepScalars)
+                              RESOLVE, resolve_strand_contacts, STEP_VALUES, CONTACT_GRID_VALUES)
+from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, SCALAR_NAMES, StateArgs, step_scalars,
+                      StepBundles, StepScalars)
 from .fused import run_stages
-from .implicit_launches import implicit_steps_with_strand_contact
 from .plan import BAD, StepPlan
-from .stages import _STAGE_FUNCS, PROJECTION, stage_frames_twist, stage_project, STAGES
+from .stages import PROJECTION, stage_frames_twist, STAGE_FUNCS, stage_project, STAGES
+
+
+# params[STEP_VALUES:] of a contact grid: the launch's scalars (bundles.SCALAR_NAMES), then the
+# contact step's own values, each in the slot its name gives (write_step_values, read_step_values)
+CONTACT_VALUES = ("self_contact", "mask", "friction", "allowed", "passes", "n_steps")
+SLOT = {name: STEP_VALUES + k for k, name in enumerate(SCALAR_NAMES + CONTACT_VALUES)}
+assert len(SLOT) == CONTACT_GRID_VALUES, "strand_contact.CONTACT_GRID_VALUES sizes the grid's params"
 
 
 @ti.func
 def read_step_values(params: ti.template()):
     """(StepScalars, self_contact, hash mask, friction, allowed depth [m], contact passes, steps)
-    from params[STEP_VALUES:], as write_step_values put them."""
-    v = ti.static(STEP_VALUES)
-    sc = StepScalars(h=params[v + 0], k0=params[v + 1], drag=params[v + 2], max_speed=params[v + 3],
-                     projection_tol=params[v + 4], projection_iterations=ti.cast(params[v + 5], ti.i32),
-                     twist_tol=params[v + 6], twist_iterations=ti.cast(params[v + 7], ti.i32),
-                     n_analytic=ti.cast(params[v + 8], ti.i32), pin_f0=params[v + 9], pin_df=params[v + 10])
-    return (sc, ti.cast(params[v + 11], ti.i32), ti.cast(params[v + 12], ti.i32), params[v + 13], params[v + 14],
-            ti.cast(params[v + 15], ti.i32), ti.cast(params[v + 16], ti.i32))
+    from params[STEP_VALUES:], each from its named slot (SLOT), as write_step_values put them."""
+    sc = StepScalars(h=params[SLOT["h"]], k0=params[SLOT["k0"]], drag=params[SLOT["drag"]],
+                     max_speed=params[SLOT["max_speed"]], projection_tol=params[SLOT["projection_tol"]],
+                     projection_iterations=ti.cast(params[SLOT["projection_iterations"]], ti.i32),
+                     twist_tol=params[SLOT["twist_tol"]],
+                     twist_iterations=ti.cast(params[SLOT["twist_iterations"]], ti.i32),
+                     n_analytic=ti.cast(params[SLOT["n_analytic"]], ti.i32), pin_f0=params[SLOT["pin_f0"]],
+                     pin_df=params[SLOT["pin_df"]])
+    return (sc, ti.cast(params[SLOT["self_contact"]], ti.i32), ti.cast(params[SLOT["mask"]], ti.i32),
+            params[SLOT["friction"]], params[SLOT["allowed"]], ti.cast(params[SLOT["passes"]], ti.i32),
+            ti.cast(params[SLOT["n_steps"]], ti.i32))
 
 
 @ti.kernel
@@ -43,7 +52,7 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
     sc, self_contact, mask, friction, allowed, _, _ = read_step_values(cg.grid_params)
     for s in range(st.x.shape[0]):
         st.counters[s, BAD] = -1
-        for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+        for stage in ti.static(STAGE_FUNCS[:PROJECTION + 1]):
             if stage(s, 0, fl, sc, md, st, dr, co):
                 st.counters[s, BAD] = 0
     contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx, self_contact,
@@ -82,7 +91,7 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
     for k in range(n_steps):
         failed = 0
         for s in range(st.x.shape[0]):
-            for stage in ti.static(_STAGE_FUNCS[:PROJECTION + 1]):
+            for stage in ti.static(STAGE_FUNCS[:PROJECTION + 1]):
                 if stage(s, k, fl, sc, md, st, dr, co):
                     st.counters[s, BAD] = k
                     failed = 1
@@ -114,14 +123,26 @@ def write_step_values(params: Scalars1, h: float, k0: float, drag: float, max_sp
                       twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
                       self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float, iterations: ti.i32,
                       n_steps: ti.i32):
-    """params[STEP_VALUES:] = StepScalars' fields in order, then self_contact, the hash mask,
-    friction, the allowed depth [m], the contact passes per step and the steps of the launch
-    (the fused kernels read them)."""
-    values = ti.Vector([h, k0, drag, max_speed, projection_tol, projection_iterations, twist_tol,
-                        twist_iterations, n_analytic, pin_f0, pin_df, self_contact, mask, friction, allowed,
-                        iterations, n_steps], dt=float)
-    for i in ti.static(range(17)):
-        params[STEP_VALUES + i] = values[i]
+    """Each value into its named slot of params (SLOT): the launch's scalars, then self_contact,
+    the hash mask, friction, the allowed depth [m], the contact passes per step and the steps of
+    the launch (the fused contact kernels read them, read_step_values)."""
+    params[SLOT["h"]] = h
+    params[SLOT["k0"]] = k0
+    params[SLOT["drag"]] = drag
+    params[SLOT["max_speed"]] = max_speed
+    params[SLOT["projection_tol"]] = projection_tol
+    params[SLOT["projection_iterations"]] = projection_iterations
+    params[SLOT["twist_tol"]] = twist_tol
+    params[SLOT["twist_iterations"]] = twist_iterations
+    params[SLOT["n_analytic"]] = n_analytic
+    params[SLOT["pin_f0"]] = pin_f0
+    params[SLOT["pin_df"]] = pin_df
+    params[SLOT["self_contact"]] = self_contact
+    params[SLOT["mask"]] = mask
+    params[SLOT["friction"]] = friction
+    params[SLOT["allowed"]] = allowed
+    params[SLOT["passes"]] = iterations
+    params[SLOT["n_steps"]] = n_steps
 
 
 SMALL_CONTACT_SCENE = 4096  # nodes: up to here a launch runs many contact steps on one thread
@@ -132,13 +153,6 @@ def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: 
     """n_steps steps of h with strand contact in one launch on one thread
     (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
     pins as in `advance`."""
-    if plan.integrator == "implicit":
-        depth = implicit_steps_with_strand_contact(bundles, plan, control, h, n_steps, grid, settings, moving_head,
-                                                   pins)
-        params = grid.params.to_numpy()
-        params[DEPTH_MAX] = max(params[DEPTH_MAX], depth)
-        grid.params.from_numpy(params)
-        return
     flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
     write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
                       grid.T - 1, settings.friction, grid.allowed_depth(settings.tolerance), settings.iterations,
@@ -154,8 +168,6 @@ def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: f
     projection stage) and the last stage, in launches of their own. grid a
     strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
     depth [m] the last of those further passes found (0 if none ran)."""
-    if plan.integrator == "implicit":
-        return implicit_steps_with_strand_contact(bundles, plan, control, h, 1, grid, settings, False, pins)
     flags, arrays_, fraction = launch_flags(plan, control, pins)
     scalars = step_scalars(plan, control, h, fraction)
     write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction,

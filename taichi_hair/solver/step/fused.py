@@ -7,7 +7,7 @@ import taichi as ti
 from ...rods.arrays import Ints2, Vec3s1, Vec3s2
 from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepScalars
 from .plan import BAD, StageFlags
-from .stages import _STAGE_FUNCS, strand_place_root
+from .stages import STAGE_FUNCS, strand_place_root
 
 
 @ti.kernel
@@ -25,7 +25,7 @@ def advance_strands(n_steps: int, fl: ti.template(), h: float, k0: float, drag: 
         st.counters[s, BAD] = -1
         for k in range(n_steps):
             bad = 0
-            for stage in ti.static(_STAGE_FUNCS):
+            for stage in ti.static(STAGE_FUNCS):
                 bad += stage(s, k, fl, sc, md, st, dr, co)
             if bad:
                 st.counters[s, BAD] = k
@@ -56,7 +56,7 @@ def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: 
     for s in range(st.x.shape[0]):
         if ti.static(first == 0):
             st.counters[s, BAD] = -1
-        for stage in ti.static(_STAGE_FUNCS[first:last]):
+        for stage in ti.static(STAGE_FUNCS[first:last]):
             if stage(s, 0, fl, sc, md, st, dr, co):
                 st.counters[s, BAD] = 0
 

@@ -9,12 +9,10 @@ from ...rods.state import HIST_DX, HIST_ELASTIC, HIST_V
 from ..collisions import head_poses
 from ..implicit import (CORRECTION_TOL, length_residual, MAX_CORRECTIONS, strand_implicit_assemble,
                         strand_implicit_finish)
-from ..strand_contact import resolve_strand_contacts
-from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, StateArgs, step_scalars, StepBundles,
-                      StepScalars)
+from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepBundles, StepScalars
 from .fused import run_stages
-from .plan import BAD, StepPlan, TWIST_NONE
-from .stages import _STAGE_FUNCS, INTEGRATION, place_root_and_pins, PROJECTION, stage_forces, STAGES
+from .plan import BAD, TWIST_NONE
+from .stages import INTEGRATION, place_root_and_pins, stage_forces, STAGE_FUNCS, STAGES
 
 
 # ---- the implicit step's driver: its integration in launches of its own -------------------------
@@ -110,7 +108,7 @@ def implicit_stages(first: ti.template(), last: ti.template(), k: ti.i32, fl: ti
     for s in range(st.x.shape[0]):
         if st.counters[s, BAD] < 0 or st.counters[s, BAD] == k:
             bad = 0
-            for stage in ti.static(_STAGE_FUNCS[first:last]):
+            for stage in ti.static(STAGE_FUNCS[first:last]):
                 bad += stage(s, k, fl, sc, md, st, dr, co)
             if bad:
                 st.counters[s, BAD] = k
@@ -164,28 +162,6 @@ def run_stage_range(bundles: StepBundles, first: int, last: int, args: tuple) ->
     implicit_integrate(bundles, args, 0, False)
     if INTEGRATION + 1 < last:
         run_stages(INTEGRATION + 1, last, *args)
-
-
-def implicit_steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int,
-                                       grid, settings, moving_head: bool, pins=None) -> float:
-    """n_steps implicit steps with strand contact, in launches: per step the forces, the
-    integration and the projection, the contact passes (strand_contact.resolve_strand_contacts,
-    each followed by the projection stage again), then velocities, frames and twist, as
-    steps_with_strand_contact does in one launch. Returns the deepest depth [m] a step's last
-    pass found (0 if none)."""
-    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
-    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
-            bundles.drive(arrays_), bundles.contacts)
-    model, state = bundles.rods
-    deepest = 0.0
-    for k in range(n_steps):
-        implicit_integrate(bundles, args, k, True)
-        implicit_stages(PROJECTION, PROJECTION + 1, k, *args)
-        depth = resolve_strand_contacts(grid, settings, model, state,
-                                        lambda: implicit_stages(PROJECTION, PROJECTION + 1, k, *args))  # noqa: B023
-        deepest = max(deepest, depth)
-        implicit_stages(PROJECTION + 1, len(STAGES), k, *args)
-    return deepest
 
 
 @ti.kernel

@@ -229,7 +229,7 @@ STAGES = (("forces", stage_forces), ("integration", stage_integrate), ("projecti
 STAGE_NAMES = tuple(name for name, _ in STAGES)
 
 
-_STAGE_FUNCS = tuple(func for _, func in STAGES)
+STAGE_FUNCS = tuple(func for _, func in STAGES)
 
 
 PROJECTION = STAGE_NAMES.index("projection")
