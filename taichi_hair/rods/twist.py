@@ -123,12 +123,14 @@ def edge_theta_gradient(s, j, n, first, rotation: ti.template(), bishop_u: ti.te
 
 
 @ti.func
-def theta_energy(s, n, first, rotation: ti.template(), bishop_u: ti.template(), bishop_v: ti.template(),
-                 kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                 rest_twist: ti.template(), voronoi: ti.template(), k):
+def theta_energy(s, n, first, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
     """The part of strand s's energy [J] that depends on its material angles: every bending
     term seen from an edge and every twist term (node 0's clamp-side bending term is constant);
-    rotation: every node's energy."""
+    rotation: every node's energy. md, st: the rods' model and state arrays (state.ModelArgs,
+    state.StateArgs: rest curvature, rest twist, Voronoi lengths; Bishop frames, curvature
+    binormals, angles)."""
+    bishop_u, bishop_v, kb, theta = ti.static(st.bishop_u, st.bishop_v, st.kb, st.theta)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
     total = 0.0
     if ti.static(rotation):
         for i in range(first, n - 1):
@@ -157,17 +159,19 @@ def edge_twist_held(s, j, clips: ti.template(), clip: ti.template()):
 
 
 @ti.func
-def assemble_newton(s, n, first, lo, clamp_bending, rotation: ti.template(), bishop_u: ti.template(),
-                    bishop_v: ti.template(), kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                    rest_twist: ti.template(), voronoi: ti.template(), k, grad: ti.template(),
-                    diag: ti.template(), upper: ti.template(), clips: ti.template(), clip: ti.template()):
+def assemble_newton(s, n, first, lo, clamp_bending, rotation: ti.template(), md: ti.template(), st: ti.template(),
+                    k, clips: ti.template(), clip: ti.template()):
     """Gradient and tridiagonal Hessian of theta_energy on the free edges lo..n-2 (first: the
     first node that bends and twists; lo = first, or 0 for a free root, whose edge 0 is free too
     and whose Hessian is singular along a uniform turn of a round strand: GAUGE_DAMPING on edge
     0's diagonal fixes that gauge without biasing the minimum); clamp_bending = 1 clamps the
     bending diagonal at 0 (rotation: takes the Gauss-Newton Hessian). An edge whose twist a clip
     holds is not free: its row is the identity with zero gradient. Returns the scaled residual
-    max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span."""
+    max_j |dE/dtheta^j| l_j / max(EI1, GJ), l_j the edge's Voronoi span. The gradient, diagonal
+    and upper diagonal go into the state's three edge scratch rows (st.diag, st.upper, st.rhs)."""
+    bishop_u, bishop_v, kb, theta = ti.static(st.bishop_u, st.bishop_v, st.kb, st.theta)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
+    grad, diag, upper = ti.static(st.diag, st.upper, st.rhs)
     scale = ti.max(k.x, k.z)
     res = 0.0
     if ti.static(rotation):
@@ -240,14 +244,13 @@ def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.temp
 
 
 @ti.func
-def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), bishop_u: ti.template(),
-                bishop_v: ti.template(),
-                kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                rest_twist: ti.template(), voronoi: ti.template(), k, step: ti.template()):
+def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
     """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
     at pi/2) that decreases the energy by ARMIJO alpha decrement, or that changes it by less than
     its rounding when the predicted decrease is below it. Returns the accepted alpha times the
-    largest |step| [rad] (0: no step found, theta unchanged)."""
+    largest |step| [rad] (0: no step found, theta unchanged). The step is in st.diag (assemble_newton's
+    gradient row, solved in place by ldl_solve)."""
+    theta, step = ti.static(st.theta, st.diag)
     n = hi + 2
     largest = 0.0
     for j in range(lo, hi + 1):
@@ -262,8 +265,7 @@ def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), bishop
         for j in range(lo, hi + 1):
             theta[s, j] -= (alpha - applied) * step[s, j]
         applied = alpha
-        e1 = theta_energy(s, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
-                          rest_twist, voronoi, k)
+        e1 = theta_energy(s, n, first, rotation, md, st, k)
         predicted = alpha * decrement
         if e1 <= e0 - ARMIJO * predicted or (predicted <= slack and e1 <= e0 + slack):
             moved = alpha * largest
@@ -277,48 +279,41 @@ def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), bishop
 
 @ti.func
 def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), rotation: ti.template(),
-                             node_count: ti.template(),
-                             bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                             theta: ti.template(), rest_kappa: ti.template(),
-                             rest_twist: ti.template(), voronoi: ti.template(),
-                             stiffness: ti.template(), tol, max_iterations, grad: ti.template(),
-                             diag: ti.template(), upper: ti.template(), clips: ti.template(),
+                             md: ti.template(), st: ti.template(), tol, max_iterations, clips: ti.template(),
                              clip: ti.template()):
     """Newton with line search on strand s's free angles (see the module doc; free_root: edge 0
-    is free too; clips: edges held by twist-holding clips keep their angles). Returns
-    (iterations, scaled residual when it stopped, CONVERGED / STALLED / CAPPED)."""
-    n = node_count[s]
-    k = stiffness[s]
+    is free too; clips: edges held by twist-holding clips keep their angles). md, st: the rods'
+    model and state arrays (state.ModelArgs, state.StateArgs); the state's three edge scratch
+    rows hold the Newton system. Returns (iterations, scaled residual when it stopped, CONVERGED /
+    STALLED / CAPPED)."""
+    theta, grad, diag, upper = ti.static(st.theta, st.diag, st.upper, st.rhs)
+    n = md.node_count[s]
+    k = md.stiffness[s]
     first = ti.static(first_node(clamp))
     lo = ti.static(0 if free_root else first_node(clamp))
     it = 0
     res = 0.0
     status = CONVERGED
     while True:
-        res = assemble_newton(s, n, first, lo, 0, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
-                              rest_twist, voronoi, k, grad, diag, upper, clips, clip)
+        res = assemble_newton(s, n, first, lo, 0, rotation, md, st, k, clips, clip)
         if res < tol:
             break
         if it >= max_iterations:
             status = CAPPED
             break
-        e0 = theta_energy(s, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa, rest_twist,
-                          voronoi, k)
+        e0 = theta_energy(s, n, first, rotation, md, st, k)
         positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
         if not positive:  # indefinite: a descent direction from the clamped bending diagonal
-            assemble_newton(s, n, first, lo, 1, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
-                            rest_twist, voronoi, k, grad, diag, upper, clips, clip)
+            assemble_newton(s, n, first, lo, 1, rotation, md, st, k, clips, clip)
             positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
-        moved = line_search(s, first, lo, n - 2, e0, decrement, rotation, bishop_u, bishop_v, kb, theta,
-                            rest_kappa, rest_twist, voronoi, k, grad)
+        moved = line_search(s, first, lo, n - 2, e0, decrement, rotation, md, st, k)
         it += 1
         largest_angle = 0.0
         for j in range(lo, n - 1):
             largest_angle = ti.max(largest_angle, ti.abs(theta[s, j]))
         if moved <= 4.0 * ti.static(rounding_epsilon()) * (1.0 + largest_angle):
             # nothing representable is left to gain: the rounding floor of this precision
-            res = assemble_newton(s, n, first, lo, 0, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                  rest_twist, voronoi, k, grad, diag, upper, clips, clip)
+            res = assemble_newton(s, n, first, lo, 0, rotation, md, st, k, clips, clip)
             if res >= tol:
                 status = STALLED
             break
@@ -326,10 +321,11 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
 
 
 @ti.func
-def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.template(),
-                     kb: ti.template(), theta: ti.template(), rest_kappa: ti.template(),
-                     rest_twist: ti.template(), voronoi: ti.template(), k):
-    """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are."""
+def kmoch_edge_angle(s, j, n, first, md: ti.template(), st: ti.template(), k):
+    """Kmoch's new angle for free edge j of strand s, neighbours' angles as they are (md, st: the
+    rods' model and state arrays)."""
+    bishop_u, bishop_v, kb, theta = ti.static(st.bishop_u, st.bishop_v, st.kb, st.theta)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
     u = bishop_u[s, j]
     v = bishop_v[s, j]
     # squaring (ku + i kv) doubles the angle, so directions equal modulo pi average properly
@@ -359,18 +355,16 @@ def kmoch_edge_angle(s, j, n, first, bishop_u: ti.template(), bishop_v: ti.templ
 
 
 @ti.func
-def strand_twist_kmoch(s, clamp: ti.template(), node_count: ti.template(), bishop_u: ti.template(),
-                       bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
-                       rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(),
-                       stiffness: ti.template(), theta_new: ti.template()):
-    """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles).
-    Returns how many edges switched branch (theta +- pi from the branch nearest the old angle)."""
-    n = node_count[s]
+def strand_twist_kmoch(s, clamp: ti.template(), md: ti.template(), st: ti.template(), theta_new: ti.template()):
+    """Kmoch's rule on every free edge of strand s at once (Jacobi: all from the old angles into
+    theta_new, then copied). md, st: the rods' model and state arrays. Returns how many edges
+    switched branch (theta +- pi from the branch nearest the old angle)."""
+    theta = ti.static(st.theta)
+    n = md.node_count[s]
     first = ti.static(first_node(clamp))
     switches = 0
     for j in range(first, n - 1):
-        angle, switched = kmoch_edge_angle(s, j, n, first, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                           rest_twist, voronoi, stiffness[s])
+        angle, switched = kmoch_edge_angle(s, j, n, first, md, st, md.stiffness[s])
         theta_new[s, j] = angle
         switches += switched
     for j in range(first, n - 1):

@@ -111,11 +111,7 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                 exact = 0
         if exact:
             it, res, how = strand_twist_quasistatic(s, clamp, ti.static(fl.root_mode == ROOT_FREE), fl.rotation,
-                                                    md.node_count,
-                                                    st.bishop_u, st.bishop_v, st.kb, st.theta,
-                                                    md.rest_kappa, md.rest_twist, md.voronoi,
-                                                    md.stiffness, sc.twist_tol, sc.twist_iterations,
-                                                    st.diag, st.upper, st.rhs, fl.clips, dr.clip)
+                                                    md, st, sc.twist_tol, sc.twist_iterations, fl.clips, dr.clip)
             st.counters[s, TWIST_IT] = ti.max(st.counters[s, TWIST_IT], it)
             st.residuals[s, 1] = ti.max(st.residuals[s, 1], res)
             if how == CAPPED:
@@ -126,9 +122,7 @@ def strand_twist(s, fl: ti.template(), sc, md: ti.template(), st: ti.template(),
                 if res > TWIST_FAILED_ABOVE:
                     failed = 1
         elif ti.static(fl.twist_mode == TWIST_KMOCH):
-            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md.node_count, st.bishop_u,
-                                                               st.bishop_v, st.kb, st.theta, md.rest_kappa,
-                                                               md.rest_twist, md.voronoi, md.stiffness, st.diag)
+            st.counters[s, TWIST_SWITCH] += strand_twist_kmoch(s, clamp, md, st, st.diag)
         strand_material_frames(s, md.node_count, st.theta, st.bishop_u, st.bishop_v, st.m1, st.m2)
     return failed
 
