@@ -1,6 +1,7 @@
 """The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (the step package) under a control
-(head, air, colliders, touch, pins), with the stability bound and its substeps, rollback on
-blow-up, and checkpoints. Units: SI throughout.
+(head, air, colliders, touch, pins), with the stability bound and its substeps. Its records
+(stats, checkpoints, rollback on blow-up: sim_records.py) and its view of the rods (state in and
+out, energies: sim_rods.py) are mixins. Units: SI throughout.
 """
 
 import math
@@ -8,33 +9,33 @@ import warnings
 
 import numpy as np
 
+from ..progress import ProgressBar
 from ..rods import arrays
 from ..rods.groom import Groom
-from ..progress import ProgressBar
-from ..runtime import ensure_init
-from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_factor, rest_turns,
-                        SimulationDiverged, likely_cause, scene_bound, stable_time_step, stiffest_mode_ratio,
-                        substeps_for)
-from ..world.scene import COLLIDERS as COLLIDER_TYPES
-from .collisions import root_keeps_collider
-from ..world.scene import Head, _host_distance
-from ..world.options import (DEFAULT_PROJECTION_TOL, Environment, SolverOptions,
-                             split_keywords)
-from .control import build_control, load_poses, load_tools
-from ..world.forces import Grab, Wind
-from .interaction import InteractionGrid
-from .strand_contact import contact_grid
-from .pins import PinTable
 from ..rods.state import COUNTERS
-from .checkpoint import load_state, pose_rows, save_state
+from ..runtime import ensure_init
 from ..validation import is_integer, is_real
+from ..world.forces import Grab, Wind
+from ..world.options import DEFAULT_PROJECTION_TOL, Environment, SolverOptions, split_keywords
+from ..world.scene import COLLIDERS as COLLIDER_TYPES
+from ..world.scene import Head, _host_distance
+from .checkpoint import pose_rows
+from .collisions import root_keeps_collider
+from .control import build_control, load_poses, load_tools
 from .drivers import StagedDriver, StrandContactDriver, choose_driver
+from .interaction import InteractionGrid
+from .pins import PinTable
+from .sim_records import Records
+from .sim_rods import RodAccess
+from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_factor, rest_turns, scene_bound,
+                        stable_time_step, stiffest_mode_ratio, substeps_for)
 from .step.contact import SMALL_CONTACT_SCENE
 from .step.fused import place_roots
 from .step.implicit_launches import seed_history
 from .step.launch import project_once
-from .step.plan import FAILED_ABOVE, STALL_BELOW, TWIST_FAILED_ABOVE, StepPlan
-from .system import RodSystem, strand_mechanical_energy
+from .step.plan import FAILED_ABOVE, StepPlan
+from .strand_contact import contact_grid
+from .system import RodSystem
 
 INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
@@ -46,7 +47,7 @@ def _positive(name, value, unit, upper=math.inf):
     return float(value)
 
 
-class Simulator:
+class Simulator(Records, RodAccess):
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
     The options come as typed data (taichi_hair.world.options, docs/architecture.md "Options"):
@@ -508,57 +509,6 @@ class Simulator:
         finally:
             self._set_dt(dt)
 
-    def _take_snapshot(self):
-        st = self.state
-        if self._snapshot is None:
-            self._snapshot = {name: arrays.like(getattr(st, name))
-                              for name in ("x", "v", "theta", "root_t", "root_u")}
-        for name, copy in self._snapshot.items():
-            copy.copy_from(getattr(st, name))
-        self._snapshot_clock = (self._substep, self.steps_taken, self._head, self._clock_offset)
-
-    def _diverged(self, h, bad_step):
-        bad = np.flatnonzero(bad_step >= 0)
-        first = bad[np.argmin(bad_step[bad])]
-        counters = self.state.counters.to_numpy()
-        cap_hits = int(counters[:, COUNTERS["projection_cap_hits"]].sum())
-        t = (self._step_index() + bad_step[first] + 1) * h
-        start = (self._snapshot_clock[3] + self._snapshot_clock[0]) * h
-        step = self._snapshot_clock[1] + int(math.ceil((t - start) / self.dt - 1e-9))
-        for name, copy in self._snapshot.items():
-            getattr(self.state, name).copy_from(copy)
-        self._history_h = None
-        self._substep, self.steps_taken, self._head, self._clock_offset = self._snapshot_clock
-        self._head_prev = self._head
-        self._orient_roots()
-        self.update_frames()
-        residual = float(self.state.residuals.to_numpy()[first, 0])
-        cause = likely_cause(h, self.stable_dt, cap_hits, self.control.max_speed, residual,
-                             implicit=self.integrator == "implicit")
-        twist_residual = float(self.state.residuals.to_numpy()[first, 1])
-        # the kernel's rule (step.strand_twist): a cap, or a stall above TWIST_FAILED_ABOVE
-        if counters[first, COUNTERS["twist_cap_hits"]] or (
-                counters[first, COUNTERS["twist_stalls"]] and twist_residual > TWIST_FAILED_ABOVE):
-            cause = (f"the twist solve of strand {first} did not converge (scaled residual "
-                     f"{twist_residual:.3g} after up to {self.twist_iterations} "
-                     f"iterations): its forces would not be the energy's gradient; raise "
-                     f"twist_iterations or twist_tol")
-        raise SimulationDiverged(
-            f"simulation diverged at step {step} (t = {t:.4g} s): strand {first} "
-            f"({len(bad)} strand(s) in all) went non-finite, faster than {self.control.max_speed:g} m/s, "
-            f"out of its inextensibility constraints or out of twist equilibrium; "
-            f"likely cause: {cause}. State rolled back to t = {self.time:.4g} s.",
-            step=step, strand=int(first))
-
-    # ---- checkpoints (checkpoint.py) ------------------------------------------------------
-    def save_state(self, path, extra=None) -> None:
-        """Write the dynamic state to `path` (.npz) atomically; see checkpoint.save_state."""
-        save_state(self, path, extra)
-
-    def load_state(self, path) -> None:
-        """Restore a state written by `save_state` for this same groom; see checkpoint.load_state."""
-        load_state(self, path)
-
     def set_user_forces(self, force) -> None:
         """Extra forces [S, N, 3] in newtons applied every step until changed; None removes them."""
         if force is None:
@@ -575,157 +525,6 @@ class Simulator:
         if self.control.user_force is None:
             self.control.user_force = arrays.vectors(3, shape[:2])
         self.control.user_force.from_numpy(force.astype(arrays.np_float()))
-
-    def stats(self, reset: bool = False) -> dict:
-        """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
-        projection iterations (max, and mean over strand-steps), its final residual (max), how many strand-steps ended above
-        projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
-        an iteration removed under 10 % of a residual already below projection_stall_below,
-        1e-3: the rounding floor in float32, or contacts pushing nodes back against the edge
-        lengths in any precision), the twist solve's iterations and residual, and with
-        strand_contact the deepest overlap [m] a step's last contact pass found
-        (strand_contact_depth_max)."""
-        counters = self.state.counters.to_numpy()
-        residuals = self.state.residuals.to_numpy()
-        report = {
-            "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
-            "projection": self.plan.projection, "extensible": self.plan.extensible, "strain": self.plan.strain,
-            "substeps": self.substeps,
-            "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
-            "projection_tol": self.plan.projection_tol,
-            "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
-            "projection_iterations_mean": (float(counters[:, COUNTERS["projection_iterations_sum"]].sum())
-                                           / max(1, int(counters[:, COUNTERS["projections"]].sum()))),
-            "projection_residual_max": float(residuals[:, 0].max()),
-            "projection_cap_hits": int(counters[:, COUNTERS["projection_cap_hits"]].sum()),
-            "projection_stalls": int(counters[:, COUNTERS["projection_stalls"]].sum()),
-            "projection_stall_below": STALL_BELOW,
-            "twist": self.twist,
-        }
-        if self.twist != "none":  # kmoch solves round strands exactly too
-            report["twist_iterations_max"] = int(counters[:, COUNTERS["twist_iterations"]].max())
-            report["twist_residual_max"] = float(residuals[:, 1].max())
-            report["twist_cap_hits"] = int(counters[:, COUNTERS["twist_cap_hits"]].sum())
-            report["twist_stalls"] = int(counters[:, COUNTERS["twist_stalls"]].sum())
-        if self.twist == "kmoch":
-            report["twist_branch_switches"] = int(counters[:, COUNTERS["twist_branch_switches"]].sum())
-        if self.strand_contact is not None:
-            fused = self._contact_grid.deepest_since_reset(reset)
-            report["strand_contact_depth_max"] = max(self._contact.depth, fused)
-        if reset:
-            self._reset_counters()
-            if self._contact is not None:
-                self._contact.reset_depth()
-        return report
-
-    def _reset_counters(self):
-        self.rods.reset_counters()
-
-    # ---- the rods (system.RodSystem): state in and out, frames, twist, elastic energy --------
-    @property
-    def n_strands(self) -> int:
-        return self.groom.n_strands
-
-    def positions(self) -> np.ndarray:
-        """Node positions [S, N, 3] in metres (padding nodes repeat each strand's last node)."""
-        return self.rods.positions()
-
-    def velocities(self) -> np.ndarray:
-        """Node velocities [S, N, 3] in m/s."""
-        return self.rods.velocities()
-
-    def set_positions(self, x) -> None:
-        """Set node positions [S, N, 3] (metres) and recompute the frames (RodSystem.set_positions)."""
-        self.rods.set_positions(x)
-        self._history_h = None
-
-    def set_velocities(self, v) -> None:
-        """Set node velocities [S, N, 3] in m/s."""
-        self.rods.set_velocities(v)
-        self._history_h = None
-
-    def material_angles(self) -> np.ndarray:
-        """Material angles theta [S, N-1] in radians, measured from the Bishop frame."""
-        return self.rods.material_angles()
-
-    def set_material_angles(self, theta) -> None:
-        self.rods.set_material_angles(theta)
-
-    def frames(self) -> dict:
-        """Bishop and material frames, tangents and curvature binormals (RodSystem.frames)."""
-        return self.rods.frames()
-
-    def update_frames(self) -> None:
-        """Bishop and material frames and curvature binormals from the current positions."""
-        self.rods.update_frames()
-
-    def update_twist(self) -> dict:
-        """Solve the free edges' material angles with the chosen twist mode (RodSystem.update_twist);
-        edges held by twist-holding clips take the clips' latest angles."""
-        return self.rods.update_twist(self._clip_arrays())
-
-    def _clip_arrays(self):
-        """The pin table's device arrays when clips hold twist, else None."""
-        if not self._pins.clips:
-            return None
-        self._pins.upload()
-        return self._pins.device
-
-    def strand_elastic_energy(self) -> np.ndarray:
-        """Elastic energy of each strand [S] in joules, material angles as they are."""
-        return self.rods.strand_elastic_energy()
-
-    def elastic_energy(self) -> float:
-        """Bending + twist energy of all strands in joules, material angles held as they are."""
-        return self.rods.elastic_energy()
-
-    def elastic_forces(self) -> np.ndarray:
-        """Elastic forces [S, N, 3] in newtons (RodSystem.elastic_forces), with the term of edges
-        whose material frame a clip holds in space."""
-        arrays_ = self._clip_arrays()
-        return self.rods.elastic_forces(clip=None if arrays_ is None else arrays_[3])
-
-    def bending_stiffness(self) -> np.ndarray:
-        """The implicit step's stiffness matrix [S, 3N, 3N] in N/m (RodSystem.bending_stiffness)."""
-        return self.rods.bending_stiffness()
-
-    def theta_gradient(self) -> np.ndarray:
-        """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
-        return self.rods.theta_gradient()
-
-    # ---- energies of the motion ---------------------------------------------------------
-    def _mechanical(self):
-        """Per-strand kinetic and gravitational energy [S], [S] in joules."""
-        st, md = self.state, self.model
-        strand_mechanical_energy(md.node_count, md.mass, self._pins.free_inv_mass, st.x, st.v,
-                                 self.control.loads, st.strand_scalar, self._potential)
-        return st.strand_scalar.to_numpy().astype(np.float64), self._potential.to_numpy().astype(np.float64)
-
-    def kinetic_energy(self) -> float:
-        """Sum of 1/2 m |v|^2 over free nodes [J] (the head-driven root node excluded)."""
-        return float(self._mechanical()[0].sum())
-
-    def gravity_energy(self) -> float:
-        """Gravitational potential -sum m g . x over free nodes [J] (zero at the origin)."""
-        return float(self._mechanical()[1].sum())
-
-    def stretch_energy(self) -> float:
-        """Stretch energy sum_j EA (|e_j| - |ebar_j|)^2 / (2 |ebar_j|) [J] of extensible strands
-        (Simulator(extensible=True)); 0 for inextensible ones."""
-        if not self.plan.extensible:
-            return 0.0
-        lengths = np.linalg.norm(np.diff(self.positions(), axis=1), axis=2)
-        rest = self.model.rest_length.to_numpy().astype(np.float64)
-        ea = self.model.stiffness.to_numpy()[:, 3].astype(np.float64)
-        used = np.arange(rest.shape[1])[None, :] < (self.model.node_count.to_numpy() - 1)[:, None]
-        return float(np.sum(np.where(used, ea[:, None] * (lengths - rest) ** 2 / (2 * np.where(used, rest, 1.0)),
-                                     0.0)))
-
-    def total_energy(self) -> float:
-        """kinetic + gravity + elastic (+ stretch, extensible strands) [J]."""
-        k, p = self._mechanical()
-        return float(k.sum() + p.sum()) + self.elastic_energy() + self.stretch_energy()
-
 
 def _max_air_speed(wind) -> float:
     """Fastest air [m/s] a wind can blow: mean * (1 + gust) + three turbulence rms."""
