@@ -33,14 +33,15 @@ from ..rods.arrays import Ints1, Ints2, Points2, Scalars1, Scalars2, Vec3s2, edg
 
 ivec3 = ti.types.vector(3, ti.i32)
 IVec3s1 = ti.types.ndarray(dtype=ivec3, ndim=1)  # [G] cell coordinates
-# a grid's arrays as one kernel argument (the fused contact step's: Taichi caps a kernel's
-# arguments, counting each argpack and each of its members, so it takes no scalars:
+# a grid's arrays as one kernel argument (the fused contact step's: Taichi caps a kernel's arguments
+# at 64 elements on x64, counting each argpack and each of its members, so this one has room for
+# 12 and no scalars:
 # params[STEP_VALUES:] carries them; member names must differ from every other bundle's, which
 # Taichi 1.7 confuses: co.params, st.counters)
 ContactGridArgs = ti.types.argpack(
     radius=Scalars1, gap=Ints1, seg_cell=IVec3s1, seg_bucket=Ints1, bucket_count=Ints1,
     bucket_start=Ints1, cursor=Ints1, sorted_seg=Ints1, grid_params=Scalars1, grid_counters=Ints1,
-    delta=Vec3s2, hits=Ints2, grid_record=Ints2)
+    delta=Vec3s2, hits=Ints2)
 
 # what a pair pass does with the pairs it finds
 MEASURE, RESOLVE, RECORD = 0, 1, 2
@@ -270,7 +271,8 @@ def _push(s, i, w, inv_mass: ti.template(), correction, delta: ti.template(), hi
 
 @ti.func
 def _pair_pass(mode: ti.template(), with_friction: ti.template(), cg: ti.template(), node_count: ti.template(),
-               x: ti.template(), x_prev: ti.template(), inv_mass: ti.template(), self_contact, mask, friction):
+               x: ti.template(), x_prev: ti.template(), inv_mass: ti.template(), self_contact, mask, friction,
+               record: ti.template()):
     """Every segment a examines the segments b > a in the 27 cells around its own; a pair of
     non-excluded segments closer than r_a + r_b with at least one free node is a contact.
     counters = (contacts, candidates examined, contacts recorded); params[MAX_PENETRATION] = the
@@ -290,7 +292,7 @@ def _pair_pass(mode: ti.template(), with_friction: ti.template(), cg: ti.templat
     radius, gap, seg_cell, seg_bucket = ti.static(cg.radius, cg.gap, cg.seg_cell, cg.seg_bucket)
     bucket_start, sorted_seg, params, counters = ti.static(cg.bucket_start, cg.sorted_seg, cg.grid_params,
                                                            cg.grid_counters)
-    delta, hits, record = ti.static(cg.delta, cg.hits, cg.grid_record)
+    delta, hits = ti.static(cg.delta, cg.hits)
     n_seg = x.shape[1] - 1
     counters[PAIRS] = 0
     counters[CANDIDATES] = 0
@@ -425,24 +427,25 @@ def _apply(node_count: ti.template(), inv_mass: ti.template(), delta: ti.templat
 @ti.kernel
 def _contact_pass(mode: ti.template(), with_friction: ti.template(), cg: ContactGridArgs, node_count: Ints1,
                   x: Points2, x_prev: Points2, inv_mass: Scalars2, dx: Vec3s2, self_contact: ti.i32, mask: ti.i32,
-                  friction: float):
+                  friction: float, record: Ints2):
     """One contact pass in one launch (launch overhead, not the work, dominates small scenes):
     the stages _count, _prefix, _fill, _pair_pass and, resolving, _apply, each a top-level
     loop (Taichi runs a kernel's top-level loops one after another)."""
-    contact_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, dx, self_contact, mask, friction)
+    contact_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, dx, self_contact, mask, friction, record)
 
 
 @ti.func
 def contact_pass(mode: ti.template(), with_friction: ti.template(), cg: ti.template(), node_count: ti.template(),
                  x: ti.template(), x_prev: ti.template(), inv_mass: ti.template(), dx: ti.template(), self_contact,
-                 mask, friction):
+                 mask, friction, record: ti.template()):
     """The stages of one pass as top-level loops of the calling kernel (or, in a serial kernel,
     loops in turn: step.advance_small_with_strand_contact); cg: the grid's arrays (ContactGridArgs),
-    node_count, x, x_prev, inv_mass, dx: the rods'."""
+    node_count, x, x_prev, inv_mass, dx: the rods'; record: RECORD mode's [P, 2] pairs (any int
+    array otherwise: resolving, the fused step passes cg.hits)."""
     _count(node_count, x, cg.grid_params, cg.seg_cell, cg.seg_bucket, cg.bucket_count, mask)
     _prefix(cg.bucket_count, cg.bucket_start, cg.cursor)
     _fill(cg.seg_bucket, cg.cursor, cg.sorted_seg)
-    _pair_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, self_contact, mask, friction)
+    _pair_pass(mode, with_friction, cg, node_count, x, x_prev, inv_mass, self_contact, mask, friction, record)
     if ti.static(mode == RESOLVE):
         _apply(node_count, inv_mass, cg.delta, cg.hits, x, dx)
     cg.grid_params[PAIR_COUNT] = ti.cast(cg.grid_counters[PAIRS], float)
@@ -566,7 +569,7 @@ class ContactGrid:
                 self._unused_dx = arrays.vectors(3, (self.S, self.N))
             dx = self._unused_dx
         _contact_pass(mode, with_friction, self.args(), self.node_count, x, x_prev, inv_mass, dx,
-                      int(self.self_contact), self.T - 1, self.friction)
+                      int(self.self_contact), self.T - 1, self.friction, self.record)
         params = self.params.to_numpy()
         self.last_pairs = int(round(float(params[PAIR_COUNT])))
         self.last_max_penetration = float(params[MAX_PENETRATION])
@@ -579,7 +582,7 @@ class ContactGrid:
                 radius=self.radius, gap=self.gap, seg_cell=self.seg_cell, seg_bucket=self.seg_bucket,
                 bucket_count=self.bucket_count, bucket_start=self.bucket_start, cursor=self.cursor,
                 sorted_seg=self.sorted_seg, grid_params=self.params, grid_counters=self.counters, delta=self.delta,
-                hits=self.hits, grid_record=self.record)
+                hits=self.hits)
         return self._args
 
     def allowed_depth(self, tolerance: float) -> float:
@@ -627,7 +630,6 @@ class ContactGrid:
         counters = self.counters.to_numpy()
         if counters[RECORDED] > self.record.shape[0]:
             self.record = arrays.ints((int(counters[RECORDED]), 2), 0)
-            self._args = None  # the bundle holds the old record array
             self._pass(RECORD, False, x, x, masses)
             counters = self.counters.to_numpy()
         found = self.record.to_numpy()[:int(counters[RECORDED])]

@@ -56,7 +56,7 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
             if stage(s, 0, fl, sc, md, st, dr, co):
                 st.counters[s, BAD] = 0
     contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx, self_contact,
-                 mask, friction)
+                 mask, friction, cg.hits)  # (the record array: unused when resolving)
     cg.grid_params[DONE] = 1.0
     project = 0
     if cg.grid_counters[PAIRS] > 0:
@@ -98,7 +98,7 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
         depth = 0.0
         for _ in range(iterations):
             contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx,
-                         self_contact, mask, friction)
+                         self_contact, mask, friction, cg.hits)
             if cg.grid_counters[PAIRS] == 0:
                 break
             depth = cg.grid_params[MAX_PENETRATION]
