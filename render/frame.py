@@ -18,7 +18,8 @@ import taichi as ti
 
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
-from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
+from .raster import (clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles,
+                     unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
@@ -227,7 +228,7 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
     [0, 1] behind everything."""
     b = _render(camera, hair, meshes, lights, lighting, background, settings)
-    return {"image": b.image.to_numpy(), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
+    return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
 
 
 def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Buffers:
@@ -279,7 +280,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
                   rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
-    image = buffer("image", ti.u8, (camera.height, camera.width, 3))
+    image = buffer("image", ti.u32, (camera.height, camera.width))
     finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
     return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha)
 
@@ -289,7 +290,7 @@ def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=
                  settings: RenderSettings = RenderSettings()) -> np.ndarray:
     """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
     (this reads back the image only)."""
-    return _render(camera, hair, meshes, lights, lighting, background, settings).image.to_numpy()
+    return unpack_image(_render(camera, hair, meshes, lights, lighting, background, settings).image)
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),

@@ -21,6 +21,7 @@ of any width, sub-pixel fibres included. Along the fibre, each pixel centre belo
 segment it projects into (t in [0, 1)), so joints of a straight polyline are not counted twice.
 """
 
+import numpy as np
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
@@ -282,9 +283,11 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            alpha: ti.types.ndarray(dtype=f32, ndim=2),
            out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
-           image: ti.types.ndarray(dtype=u8, ndim=3)):
+           image: ti.types.ndarray(dtype=ti.u32, ndim=2)):
     """Box-filter scale x scale blocks of the supersampled rgb/alpha (H*s, W*s) down to
-    (H, W), and encode the image (H, W, 3) as 8-bit sRGB. One thread per output pixel."""
+    (H, W), and encode the image (H, W) as 8-bit sRGB packed R | G << 8 | B << 16 (a
+    little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
+    faster than three bytes, `unpack_image`). One thread per output pixel."""
     for py, px in out_alpha:
         c = vec3f(0.0, 0.0, 0.0)
         a = f32(0.0)
@@ -294,5 +297,13 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
         norm = f32(1.0) / ti.cast(scale * scale, f32)
         out_rgb[py, px] = c * norm
         out_alpha[py, px] = a * norm
+        word = ti.u32(0)
         for ch in ti.static(range(3)):
-            image[py, px, ch] = encode_srgb(c[ch] * norm)
+            word |= ti.cast(encode_srgb(c[ch] * norm), ti.u32) << ti.u32(8 * ch)
+        image[py, px] = word
+
+
+def unpack_image(packed) -> np.ndarray:
+    """(H, W, 3) uint8 sRGB from `finish`'s packed (H, W) image (a device ndarray)."""
+    words = np.ascontiguousarray(packed.to_numpy(), dtype="<u4")
+    return words.view(np.uint8).reshape(*words.shape, 4)[..., :3].copy()
