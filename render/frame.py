@@ -17,7 +17,8 @@ import numpy as np
 import taichi as ti
 
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
-from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
+from .colour import srgb_colour, srgb_to_linear
+from .geometry import Hair, Mesh, merge_meshes
 from .raster import (clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles,
                      unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
@@ -235,7 +236,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     """Render one frame into device buffers (see `render_buffers`)."""
     _check(camera, hair, meshes, settings)
     directional, ambient = _lights(lights, lighting)
-    bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
+    bg = srgb_to_linear(srgb_colour("background", background)).astype(np.float32)
     ensure_init()
     meshes = list(meshes)
     s = settings.supersample

@@ -19,7 +19,7 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, mat4f, unit, vec3f, vec4f
-from .geometry import _colour, srgb_to_linear
+from .colour import srgb_colour, srgb_to_linear
 from .raster import barycentric, empty_key, key_prim, perspective_weights, pixel_centre, vec3i
 from .runtime import buffer, ensure_init, upload
 from .shadows import transmittance
@@ -124,7 +124,7 @@ class Light:
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
             raise ValueError(f"to_light must be a non-zero 3-vector, got {self.to_light!r}")
         object.__setattr__(self, "to_light", tuple(d / np.linalg.norm(d)))
-        object.__setattr__(self, "colour", tuple(_colour("colour", self.colour)))
+        object.__setattr__(self, "colour", tuple(srgb_colour("colour", self.colour)))
         if not self.intensity >= 0.0:
             raise ValueError(f"intensity must be >= 0, got {self.intensity}")
 
@@ -144,7 +144,7 @@ class Lighting:
     def __post_init__(self):
         if not isinstance(self.key, Light):
             raise ValueError(f"key must be a render.Light, got {type(self.key).__name__}")
-        object.__setattr__(self, "ambient", tuple(_colour("ambient", self.ambient)))
+        object.__setattr__(self, "ambient", tuple(srgb_colour("ambient", self.ambient)))
         if not self.ambient_intensity >= 0.0:
             raise ValueError(f"ambient_intensity must be >= 0, got {self.ambient_intensity}")
 

@@ -11,7 +11,7 @@ import taichi as ti
 import render
 from render import (Camera, Hair, HairShading, Light, Lighting, Mesh, RenderSettings,
                     ShadowSettings, Turntable)
-from render.geometry import srgb_to_linear
+from render.colour import srgb_to_linear
 
 W, H = 64, 48
 FRONT = Camera(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0), fov_y=40.0, width=W, height=H)
@@ -460,3 +460,35 @@ def test_frame_does_not_depend_on_how_work_is_chunked(monkeypatch):
     assert frames[0]["alpha"].max() > 0.5
     for k in ("image", "rgb", "alpha"):
         np.testing.assert_array_equal(frames[0][k], frames[1][k])
+
+
+def test_asked_hair_colour_renders_as_that_colour():
+    """Six colours, platinum to black: the reference swatch (`render.swatch`, a seed other
+    than the stored response's) renders each within Delta E2000 3 of the colour asked. Chiang's
+    inversion, used before, rendered them 12-23 apart (brown as beige, black as grey)."""
+    from render.swatch import colour_table
+    rows = colour_table(seed=2)
+    assert len(rows) == 6
+    for r in rows:
+        assert r["delta_e"] < 3.0, r
+
+
+def test_colour_response_inversion_is_monotone_and_bounded():
+    """sigma_for_colour: darker asks get more absorption, white none, and black the most."""
+    from render.colour import response_sigma_grid, sigma_for_colour
+    grey = np.linspace(0.0, 1.0, 11)[:, None] * np.ones(3)
+    s = sigma_for_colour(grey)
+    assert np.all(np.diff(s, axis=0) <= 0.0)
+    assert np.allclose(s[-1], 0.0)
+    assert np.all(s[0] <= response_sigma_grid()[-1])
+
+
+def test_delta_e2000_matches_sharma_pairs():
+    """CIEDE2000 on pairs from Sharma, Wu & Dalal (2005), table 1."""
+    from render.colour import delta_e2000
+    pairs = [((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
+             ((50.0, -1.3802, -84.2814), (50.0, 0.0, -82.7485), 1.0000),
+             ((50.0, 2.5, 0.0), (73.0, 25.0, -18.0), 27.1492),
+             ((2.0776, 0.0795, -1.1350), (0.9033, -0.0636, -0.5514), 0.9082)]
+    for a, b, want in pairs:
+        assert abs(float(delta_e2000(a, b)) - want) < 1e-3
