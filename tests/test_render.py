@@ -464,8 +464,9 @@ def test_frame_does_not_depend_on_how_work_is_chunked(monkeypatch):
 
 def test_asked_hair_colour_renders_as_that_colour():
     """Six colours, platinum to black: the reference swatch (`render.swatch`, a seed other
-    than the stored response's) renders each within Delta E2000 3 of the colour asked. Chiang's
-    inversion, used before, rendered them 12-23 apart (brown as beige, black as grey)."""
+    than the stored response's) renders each within Delta E2000 3 of the colour asked. With
+    Chiang's inversion, used before, the swatch's plain mean was 12-23 away (brown as beige,
+    black as grey)."""
     from render.swatch import colour_table
     rows = colour_table(seed=2)
     assert len(rows) == 6
@@ -506,3 +507,14 @@ def test_mesh_edges_are_antialiased():
                                 settings=RenderSettings(supersample=4))["rgb"]
     d = np.abs(one - ref).max(axis=-1)
     assert d.max() < 0.2 and (d > 0.05).sum() < 15, (d.max(), (d > 0.05).sum())
+
+
+def test_subject_fraction_measures_rows_off_the_backdrop():
+    """contact.subject_fraction: a 30-row block on a 100-row backdrop is 0.30 of the height;
+    noise within the tolerance is backdrop; a blank frame is 0."""
+    from render.contact import subject_fraction
+    img = np.full((100, 80, 3), 82, np.uint8)
+    img[::7, ::5] += 3
+    assert subject_fraction(img) == 0.0
+    img[40:70, 10:20] = (150, 110, 60)
+    assert abs(subject_fraction(img) - 0.30) < 1e-9
