@@ -518,3 +518,20 @@ def test_subject_fraction_measures_rows_off_the_backdrop():
     assert subject_fraction(img) == 0.0
     img[40:70, 10:20] = (150, 110, 60)
     assert abs(subject_fraction(img) - 0.30) < 1e-9
+
+
+def test_tight_fit_keeps_every_point_in_frame_and_fills_more():
+    """fit_camera(tight=True) on a sphere's points: every point projects inside the frame,
+    the sphere spans more of the frame's height than with the box's corners fitted, and the
+    tightest point touches the frame within the margin."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(4000, 3))
+    p = 0.1 * p / np.linalg.norm(p, axis=1, keepdims=True)
+    spans = []
+    for tight in (False, True):
+        cam = render.fit_camera(p, direction=(0.0, 1.0, 0.25), width=320, height=240,
+                                margin=1.02, tight=tight)
+        s = cam.project(p)
+        assert s[:, 0].min() >= 0 and s[:, 0].max() <= 320 and s[:, 1].min() >= 0 and s[:, 1].max() <= 240
+        spans.append((s[:, 1].max() - s[:, 1].min()) / 240)
+    assert spans[1] > spans[0] * 1.1 and spans[1] > 0.9, spans
