@@ -19,11 +19,12 @@ import taichi as ti
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .geometry import Hair, Mesh, merge_meshes
-from .raster import (clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles,
+from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish,
+                     mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
                      unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
-from .shading import EDGE_SAMPLES, DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
+from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
 from . import tiles
 from .tiles import bin_hair, composite_binned
@@ -118,7 +119,6 @@ def _upload_meshes(meshes) -> dict:
                 width=upload("mesh_w", np.zeros(nv, np.float32), f32),
                 width_px=buffer("mesh_width_px", f32, (nv,)),
                 screen=buffer("mesh_screen", vec4f, (nv,), 4),
-                screen_sub=buffer("mesh_screen_sub", vec4f, (nv,), 4),
                 n_vertices=len(m["x"]), n_faces=len(m["faces"]))
 
 
@@ -172,7 +172,7 @@ def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
                         hd["rgba"])
 
 
-def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, sub_key, settings,
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, edges, settings,
                   base, masked: bool = False):
     """Per directional light: its shadow maps and the meshes' shading, adding up (the first
     pass also writes the ambient term and the background), and the hair's shadow terms; then
@@ -188,7 +188,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, sub_key
                                 md if md["n_faces"] else None)
         irradiance = np.asarray(light.irradiance_rgb, np.float32)
         # Lambert: radiance = albedo / pi x irradiance x cos
-        shade_mesh(mesh_key, sub_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
+        shade_mesh(mesh_key, *edges, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
                    md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
                    bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
                    smap.params, int(k == 0), base)
@@ -260,20 +260,22 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
-    # the meshes' depth at sub-pixels: where they disagree (an edge) shading averages them
-    sub_key = buffer("mesh_sub_key", ti.i64, (EDGE_SAMPLES * height, EDGE_SAMPLES * width))
-    clear_keys_2d(sub_key)
-    if md["n_faces"]:
-        view2, proj2 = camera.matrices(EDGE_SAMPLES * s)
-        project_vertices(md["n_vertices"], md["x"], md["width"], view2, proj2, md["screen_sub"],
-                         md["width_px"])
-        raster_triangles(md["n_faces"], md["screen_sub"], md["faces"], near, sub_key)
+    # near mesh edges, the meshes' depth at sub-pixels too: where they disagree shading
+    # averages them (a quarter of the pixels at most: a frame of edges is not a picture)
+    edge_index = buffer("mesh_edge_index", ti.i32, (height, width))
+    capacity = height * width // 4 + 1
+    sub_key = buffer("mesh_sub_key", ti.i64, (capacity, EDGE_SAMPLES * EDGE_SAMPLES))
+    counter = buffer("mesh_edge_count", ti.i32, (1,))
+    counter.fill(0)
+    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key)
+    raster_edge_samples(md["n_faces"], md["screen"], md["faces"], near, edge_index, sub_key)
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
     # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
-    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, sub_key, settings, base,
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, (edge_index, sub_key),
+                  settings, base,
                   masked=bins is not None and tiles.CULL_HIDDEN)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])

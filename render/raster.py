@@ -123,6 +123,72 @@ def raster_triangles(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                         ti.atomic_min(key[py, px], pack(depth, f))
 
 
+
+# sub-pixels per side where mesh edges are anti-aliased (`mark_mesh_edges`, `shade_mesh`)
+EDGE_SAMPLES = 3
+
+
+@ti.kernel
+def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: ti.i32,
+                    count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                    sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """edge_index (H, W) = a slot (row of sub_key) for each pixel near a mesh edge: one of its
+    8 neighbours differs in showing a mesh, or in depth by over 2 %; -1 elsewhere (and past
+    `capacity` slots). The slot's EDGE_SAMPLES^2 keys are cleared; count[0]: slots taken
+    (start at 0). One thread per pixel."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    for py, px in mesh_key:
+        k = mesh_key[py, px]
+        is_edge = 0
+        for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
+            k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
+            if (k == empty_key()) != (k2 == empty_key()):
+                is_edge = 1
+            elif k != empty_key():
+                z1, z2 = key_depth(k), key_depth(k2)
+                if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
+                    is_edge = 1
+        slot = -1
+        if is_edge:
+            s = ti.atomic_add(count[0], 1)
+            if s < capacity:
+                slot = s
+                for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                    sub_key[s, j] = empty_key()
+        edge_index[py, px] = slot
+
+
+@ti.kernel
+def raster_edge_samples(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                        faces: ti.types.ndarray(dtype=vec3i, ndim=1), near: f32,
+                        edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                        sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """Depth-test n triangles at the EDGE_SAMPLES x EDGE_SAMPLES sub-pixel centres of the
+    pixels `mark_mesh_edges` gave a slot: sub_key[slot, dy * EDGE_SAMPLES + dx] = nearest
+    (depth, face). One thread per triangle."""
+    height, width = edge_index.shape[0], edge_index.shape[1]
+    for f in range(n):
+        a, b, c = screen[faces[f][0]], screen[faces[f][1]], screen[faces[f][2]]
+        area = edge(vec2f(a[0], a[1]), vec2f(b[0], b[1]), vec2f(c[0], c[1]))
+        if ti.min(a[2], b[2], c[2]) > near and ti.abs(area) > f32(1e-12):
+            x0 = ti.max(ti.cast(ti.floor(ti.min(a[0], b[0], c[0])), ti.i32), 0)
+            x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0], c[0])), ti.i32), width - 1)
+            y0 = ti.max(ti.cast(ti.floor(ti.min(a[1], b[1], c[1])), ti.i32), 0)
+            y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1], c[1])), ti.i32), height - 1)
+            for py in range(y0, y1 + 1):
+                for px in range(x0, x1 + 1):
+                    slot = edge_index[py, px]
+                    if slot >= 0:
+                        for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
+                            p = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
+                                      ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
+                            w = barycentric(a, b, c, p)
+                            if w[0] >= f32(0.0) and w[1] >= f32(0.0) and w[2] >= f32(0.0):
+                                q = perspective_weights(a, b, c, w)
+                                depth = q[0] * a[2] + q[1] * b[2] + q[2] * c[2]
+                                ti.atomic_min(sub_key[slot, dy * EDGE_SAMPLES + dx], pack(depth, f))
+
 @ti.func
 def coverage(p: vec2f, a: vec4f, b: vec4f, wa: f32, wb: f32) -> vec2f:
     """(coverage in [0, 1], t) of the pixel centred at p by the fibre from a to b with widths

@@ -20,7 +20,7 @@ import taichi as ti
 
 from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
-from .raster import (barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
+from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
                      vec2f, vec3i)
 from .runtime import buffer, ensure_init, upload
 from .shadows import transmittance
@@ -287,10 +287,6 @@ def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading())
     return {"diffuse": r[:, 0], "primary": r[:, 1], "secondary": r[:, 2]}
 
 
-# sub-pixels per side where mesh edges are anti-aliased (`shade_mesh`)
-EDGE_SAMPLES = 3
-
-
 @ti.func
 def mesh_sample(key: ti.i64, p2, screen: ti.template(), faces: ti.template(), x: ti.template(),
                 normal: ti.template(), albedo: ti.template(), material: ti.template(), eye: vec3f,
@@ -317,6 +313,7 @@ def mesh_sample(key: ti.i64, p2, screen: ti.template(), faces: ti.template(), x:
 
 @ti.kernel
 def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+               edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
                sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                faces: ti.types.ndarray(dtype=vec3i, ndim=1),
@@ -331,29 +328,33 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f, first: ti.i32,
                base: ti.types.ndarray(dtype=vec3f, ndim=2)):
     """base (H, W) = linear radiance of the visible mesh surface over the background; with
-    `first` = 0 only this light's direct term is added (one call per light). sub_key
-    (EDGE_SAMPLES H, EDGE_SAMPLES W): the meshes' depth keys at the sub-pixel centres. Edges
-    are anti-aliased: a pixel whose sub-pixels disagree (mesh and background, or a depth step
-    of over 2 %: a silhouette) is the mean of its sub-pixels, each shaded on its own face; any
-    other pixel is shaded once at its centre. One thread per pixel."""
+    `first` = 0 only this light's direct term is added (one call per light). edge_index,
+    sub_key: the slots of the pixels near mesh edges and their depth keys at the
+    EDGE_SAMPLES^2 sub-pixel centres (`raster.mark_mesh_edges`, `raster.raster_edge_samples`).
+    Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, or a
+    depth step of over 2 %: a silhouette) is the mean of its sub-pixels, each shaded on its own
+    face; any other pixel is shaded once at its centre. One thread per pixel."""
     for py, px in base:
         key = mesh_key[py, px]
+        slot = edge_index[py, px]
         n_mesh, z_lo, z_hi = 0, f32(3.0e38), f32(0.0)
-        for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
-            k = sub_key[EDGE_SAMPLES * py + dy, EDGE_SAMPLES * px + dx]
-            if k != empty_key():
-                n_mesh += 1
-                z = key_depth(k)
-                z_lo = ti.min(z_lo, z)
-                z_hi = ti.max(z_hi, z)
         full = EDGE_SAMPLES * EDGE_SAMPLES
-        edge = (n_mesh > 0 and n_mesh < full) or (n_mesh == full and z_hi > z_lo * f32(1.02))
+        if slot >= 0:
+            for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                k = sub_key[slot, j]
+                if k != empty_key():
+                    n_mesh += 1
+                    z = key_depth(k)
+                    z_lo = ti.min(z_lo, z)
+                    z_hi = ti.max(z_hi, z)
+        edge = slot >= 0 and ((n_mesh > 0 and n_mesh < full)
+                              or (n_mesh == full and z_hi > z_lo * f32(1.02)))
         c = vec3f(0.0, 0.0, 0.0)
         any_mesh = key != empty_key()
         if edge:
             any_mesh = True
             for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
-                k = sub_key[EDGE_SAMPLES * py + dy, EDGE_SAMPLES * px + dx]
+                k = sub_key[slot, dy * EDGE_SAMPLES + dx]
                 if k != empty_key():
                     p2 = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
                                ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
