@@ -1,7 +1,7 @@
 """Frame-time benchmark on synthetic hair, and the synthetic scene itself.
 
     python -m render.bench [--strands 100000] [--segments 32] [--width 1280] [--height 720]
-                           [--repeats 3] [--arch cpu]
+                           [--repeats 3] [--arch cpu] [--strand-lod 1.0]
     python -m render.bench --table [--repeats 5]     # old vs new compositor, all sizes
 
 Times `render_frame` on whatever arch Taichi is initialised with (initialising it with
@@ -131,8 +131,12 @@ def main(argv=None) -> None:
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--arch", default="cpu")
+    p.add_argument("--strand-lod", type=float, default=1.0,
+                   help="RenderSettings.strand_lod: fraction of strands drawn, in (0, 1]")
     p.add_argument("--table", action="store_true", help="old vs new compositor at all sizes")
     args = p.parse_args(argv)
+    if not 0.0 < args.strand_lod <= 1.0:
+        p.error(f"--strand-lod must be in (0, 1], got {args.strand_lod}")
     init(args.arch)
     if args.table:
         names = list(TABLE_SETTINGS)
@@ -143,7 +147,8 @@ def main(argv=None) -> None:
             print(f"| {r['strands'] // 1000}k | {r['size']} | "
                   + " | ".join(f"{r[k][0]:.0f} / {r[k][1]:.0f}" for k in names) + " |", flush=True)
         return
-    r = bench_render(args.strands, args.segments, args.width, args.height, args.repeats)
+    r = bench_render(args.strands, args.segments, args.width, args.height, args.repeats,
+                     RenderSettings(strand_lod=args.strand_lod))
     rows = [("arch", r["arch"]), ("strands x segments", f"{r['n_strands']} x {r['n_segments']}"),
             ("resolution", f"{r['width']} x {r['height']}"),
             ("first frame (compile + render)", f"{r['first_frame_s']:.2f} s"),

@@ -175,11 +175,14 @@ def project_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
 
 
 def fit_camera(points, *, direction=(0.0, 1.0, 0.25), up=(0.0, 0.0, 1.0), fov_y: float = 35.0,
-               width: int = 640, height: int = 480, margin: float = 1.08) -> Camera:
+               width: int = 640, height: int = 480, margin: float = 1.08,
+               tight: bool = False) -> Camera:
     """A camera looking along -direction (direction: from the subject towards the eye) at the
     centre of the bounding box of `points` [m] (N, 3), just far enough that every corner of
     the box projects inside the frame with `margin` (> 1) to spare: the subject centred and
-    filling the frame."""
+    filling the frame. tight: every point, rather than every corner of their box, projects
+    inside (a rounded subject then fills more of the frame: the box's corners nearest the eye
+    are empty space that perspective would make room for)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) == 0 or not np.all(np.isfinite(p)):
         raise ValueError("points must be a non-empty finite (N, 3) array [m]")
@@ -189,8 +192,8 @@ def fit_camera(points, *, direction=(0.0, 1.0, 0.25), up=(0.0, 0.0, 1.0), fov_y:
     d = d / np.linalg.norm(d)
     lo, hi = p.min(axis=0), p.max(axis=0)
     centre = 0.5 * (lo + hi)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])]) - centre
+    corners = (p if tight else np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                         for z in (lo[2], hi[2])])) - centre
     u = np.asarray(up, dtype=np.float64)
     right = np.cross(-d, u)
     right /= np.linalg.norm(right)

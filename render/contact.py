@@ -1,14 +1,15 @@
 """A contact sheet for review: the first, middle and last frame of every run, one row each.
 
     python -m render.contact out/* --out out/contact_sheet.png [--thumb 320]
-    python -m render.contact --run scenes/*.py --frames 24 --out out/contact_sheet.png
+    python -m render.contact --run scenes/*.py --frames 24 --out docs/images/contact_sheet.png
 
 With --run, each argument is a scene script, first run with `taichi-hair run` (as a separate
-command: render imports nothing of taichi_hair) into out/contact_runs/<scene> at the given
---frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's
+command: render imports nothing of taichi_hair) into --runs-dir/<scene> (default
+out/contact_runs) at the given --frames / --width / --height / --dense, then tiled. Otherwise each argument is a run's
 output folder (holding frames/frame_NNNNN.png, as `taichi-hair run` writes, or
 frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are skipped
-with a note. Rows are labelled with the folder's name and the frame numbers.
+with a note. Rows are labelled with the folder's name, the frame numbers and the subject's
+fraction of the frame height (`subject_fraction`, the smallest of the three frames).
 """
 
 import argparse
@@ -38,31 +39,45 @@ def _thumb(image: np.ndarray, width: int) -> np.ndarray:
     return (a + 0.5).astype(np.uint8)
 
 
+def subject_fraction(image: np.ndarray, tolerance: int = 6) -> float:
+    """Fraction of the image's height (H, W, 3) spanned by the rows holding any pixel that
+    differs from the backdrop (the colour of the top-left pixel) by more than `tolerance`
+    8-bit levels in some channel: the subject's height in the frame (0 if none)."""
+    diff = np.abs(image.astype(np.int16) - image[0, 0].astype(np.int16)).max(axis=-1)
+    rows = np.nonzero((diff > tolerance).any(axis=1))[0]
+    return float(rows[-1] - rows[0] + 1) / image.shape[0] if len(rows) else 0.0
+
+
 def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
-    """Write the sheet as a PNG; returns {"path", "rows": [folder names], "skipped": [...]}."""
-    rows, names, skipped = [], [], []
+    """Write the sheet as a PNG; returns {"path", "rows": [folder names], "skipped": [...],
+    "fractions": [the smallest subject_fraction of each row's frames]}."""
+    rows, names, skipped, fractions = [], [], [], []
     for folder in map(Path, folders):
         frames = _frames(folder)
         if not frames:
             skipped.append(str(folder))
             continue
         picks = sorted({0, len(frames) // 2, len(frames) - 1})
-        thumbs = [_thumb(read_png(frames[k]), thumb) for k in picks]
+        images = [read_png(frames[k]) for k in picks]
+        fraction = min(subject_fraction(im) for im in images)
+        thumbs = [_thumb(im, thumb) for im in images]
         h = max(t.shape[0] for t in thumbs)
         cells = [np.pad(t, ((0, h - t.shape[0]), (0, thumb - t.shape[1] + 4), (0, 0)),
                         constant_values=255) for t in thumbs]
         row = np.concatenate(cells, axis=1)
         label = np.full((LABEL_H, row.shape[1], 3), 255, np.uint8)
-        draw_text(label, 4, 4, f"{folder.name}  frames {', '.join(frames[k].stem[6:] for k in picks)}")
+        draw_text(label, 4, 4, f"{folder.name}  frames {', '.join(frames[k].stem[6:] for k in picks)}"
+                               f"  subject {100 * fraction:.0f} % of height")
         rows.append(np.concatenate([label, row]))
         names.append(folder.name)
+        fractions.append(fraction)
     if not rows:
         raise ValueError(f"no frame_*.png found in any of {[str(f) for f in folders]}")
     width = max(r.shape[1] for r in rows)
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)),
                                    constant_values=255) for r in rows])
     path = write_png(out_path, sheet)
-    return {"path": path, "rows": names, "skipped": skipped}
+    return {"path": path, "rows": names, "skipped": skipped, "fractions": fractions}
 
 
 def run_scenes(scripts, runs_dir, frames: int, width: int, height: int, dense: int | None) -> list:
@@ -89,6 +104,7 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("folders", nargs="+", help="run folders, or scene scripts with --run")
     p.add_argument("--out", default="out/contact_sheet.png")
+    p.add_argument("--runs-dir", default="out/contact_runs", help="where --run writes the runs")
     p.add_argument("--thumb", type=int, default=320)
     p.add_argument("--run", action="store_true", help="the arguments are scene scripts: run them first")
     p.add_argument("--frames", type=int, default=24)
@@ -98,11 +114,13 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     folders = args.folders
     if args.run:
-        folders = run_scenes(folders, Path(args.out).parent / "contact_runs", args.frames,
+        folders = run_scenes(folders, args.runs_dir, args.frames,
                              args.width, args.height, args.dense)
     r = contact_sheet(folders, args.out, args.thumb)
     for s in r["skipped"]:
         print(f"skipped (no frames): {s}")
+    for name, f in zip(r["rows"], r["fractions"]):
+        print(f"{name}: subject {100 * f:.0f} % of the frame height (smallest of first, middle, last)")
     print(f"{r['path']}: {len(r['rows'])} rows")
 
 

@@ -30,6 +30,7 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, unit, vec3f, vec4f
+from .colour import sigma_for_colour, srgb_to_linear
 from .runtime import buffer, ensure_init, upload
 
 vec6f = ti.types.vector(6, ti.f32)
@@ -119,13 +120,19 @@ class HairMaterial:
 
     @classmethod
     def from_colour(cls, rgb, beta_n: float = 0.3, **kwargs) -> "HairMaterial":
-        """The material whose hair volume looks `rgb` (sRGB in [0, 1]) after Chiang et al.'s
-        inversion (made for multiple scattering: single scattering renders it darker)."""
-        from .geometry import srgb_to_linear
+        """The material whose hair renders as colour `rgb` (sRGB in [0, 1]): the body colour of
+        the reference swatch (`render.swatch`), inverted through the stored response of the
+        default fibre parameters (beta_m, beta_n, alpha_deg, ior); with other parameters (in
+        beta_n or kwargs) Chiang et al.'s inversion, which renders lighter and greyer."""
         c = np.asarray(rgb, dtype=np.float64)
         if c.shape != (3,) or not np.all((c >= 0.0) & (c <= 1.0)):
             raise ValueError(f"rgb must be 3 sRGB values in [0, 1], got {rgb!r}")
-        sigma = np.minimum(sigma_from_colour(srgb_to_linear(c), beta_n), SIGMA_MAX)
+        d = cls()
+        default = (beta_n == d.beta_n and all(kwargs.get(k, getattr(d, k)) == getattr(d, k)
+                                              for k in ("beta_m", "alpha_deg", "ior")))
+        lin = srgb_to_linear(c)
+        sigma = np.minimum(sigma_for_colour(lin) if default else sigma_from_colour(lin, beta_n),
+                           SIGMA_MAX)
         return cls(sigma_a=tuple(sigma), beta_n=beta_n, **kwargs)
 
     def absorption(self) -> np.ndarray:

@@ -17,8 +17,11 @@ import numpy as np
 import taichi as ti
 
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
-from .geometry import Hair, Mesh, _colour, merge_meshes, srgb_to_linear
-from .raster import clear_frame, clear_keys_2d, composite, finish, raster_hair, raster_triangles, vec3i
+from .colour import srgb_colour, srgb_to_linear
+from .geometry import Hair, Mesh, merge_meshes
+from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish,
+                     mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
+                     unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
 from .fibre import shade_fibre_vertices, upload_tables
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
@@ -169,8 +172,8 @@ def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
                         hd["rgba"])
 
 
-def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
-                  masked: bool = False):
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, edges, settings,
+                  base, masked: bool = False):
     """Per directional light: its shadow maps and the meshes' shading, adding up (the first
     pass also writes the ambient term and the background), and the hair's shadow terms; then
     the fibre shading of the hair under all lights in one pass (Kajiya-Kay: per light).
@@ -185,7 +188,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, setting
                                 md if md["n_faces"] else None)
         irradiance = np.asarray(light.irradiance_rgb, np.float32)
         # Lambert: radiance = albedo / pi x irradiance x cos
-        shade_mesh(mesh_key, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
+        shade_mesh(mesh_key, *edges, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
                    md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
                    bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
                    smap.params, int(k == 0), base)
@@ -227,14 +230,14 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
     [0, 1] behind everything."""
     b = _render(camera, hair, meshes, lights, lighting, background, settings)
-    return {"image": b.image.to_numpy(), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
+    return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
 
 
 def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Buffers:
     """Render one frame into device buffers (see `render_buffers`)."""
     _check(camera, hair, meshes, settings)
     directional, ambient = _lights(lights, lighting)
-    bg = srgb_to_linear(_colour("background", background)).astype(np.float32)
+    bg = srgb_to_linear(srgb_colour("background", background)).astype(np.float32)
     ensure_init()
     meshes = list(meshes)
     s = settings.supersample
@@ -257,12 +260,22 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     project_vertices(md["n_vertices"], md["x"], md["width"], view, proj, md["screen"],
                      md["width_px"])
     raster_triangles(md["n_faces"], md["screen"], md["faces"], near, mesh_key)
+    # near mesh edges, the meshes' depth at sub-pixels too: where they disagree shading
+    # averages them (a quarter of the pixels at most: a frame of edges is not a picture)
+    edge_index = buffer("mesh_edge_index", ti.i32, (height, width))
+    capacity = height * width // 4 + 1
+    sub_key = buffer("mesh_sub_key", ti.i64, (capacity, EDGE_SAMPLES * EDGE_SAMPLES))
+    counter = buffer("mesh_edge_count", ti.i32, (1,))
+    counter.fill(0)
+    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key)
+    raster_edge_samples(md["n_faces"], md["screen"], md["faces"], near, edge_index, sub_key)
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
     # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
-    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, settings, base,
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, (edge_index, sub_key),
+                  settings, base,
                   masked=bins is not None and tiles.CULL_HIDDEN)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
@@ -279,7 +292,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
                   rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
-    image = buffer("image", ti.u8, (camera.height, camera.width, 3))
+    image = buffer("image", ti.u32, (camera.height, camera.width))
     finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
     return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha)
 
@@ -289,7 +302,7 @@ def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=
                  settings: RenderSettings = RenderSettings()) -> np.ndarray:
     """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
     (this reads back the image only)."""
-    return _render(camera, hair, meshes, lights, lighting, background, settings).image.to_numpy()
+    return unpack_image(_render(camera, hair, meshes, lights, lighting, background, settings).image)
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),

@@ -8,20 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fibre import HairMaterial, colour_from_sigma, sigma_from_colour
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear light, same shape."""
-    c = np.asarray(c, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def _colour(name: str, value) -> np.ndarray:
-    c = np.asarray(value, dtype=np.float64)
-    if c.shape != (3,) or not np.all((c >= 0.0) & (c <= 1.0)):
-        raise ValueError(f"{name} must be 3 sRGB values in [0, 1], got {value!r}")
-    return c
+from .colour import sigma_for_colour, srgb_to_linear
+from .fibre import HairMaterial, colour_from_sigma
 
 
 def _strands(points) -> tuple[np.ndarray, np.ndarray]:
@@ -85,7 +73,9 @@ class Hair:
 
     points [m]: array [S, N, 3], or a list of S arrays [N_i, 3] (ragged), N >= 2.
     colours: sRGB in [0, 1]; shape (3,) for all hair, (S, 3) per strand, or per vertex
-        ((S, N, 3) or a list of [N_i, 3]).
+        ((S, N, 3) or a list of [N_i, 3]). Without a material the fibres' absorption is chosen
+        so that the hair renders as this colour: the body colour of the reference swatch
+        (`render.swatch`; within Delta E2000 3), highlights on top.
     widths [m] > 0: fibre (or ribbon) width; a scalar, (S,) per strand, or per vertex
         ((S, N) or a list of [N_i]). Real hair is 50-100 um wide.
     opacity in (0, 1]: alpha of a fibre covering a whole pixel.
@@ -122,13 +112,12 @@ class Hair:
             raise ValueError("points must be finite, got NaN or inf")
         # without a material the absorption is inverted from the colours: per colour as given
         # (one per hair or strand, usually), before broadcasting to the vertices
-        beta_n = HairMaterial().beta_n
         invert = self.material is None
 
         def colour_terms(c):
             # float32 before broadcasting: the per-vertex copies below then convert nothing
             lin = _linear_colours(c)
-            terms = np.concatenate([lin, sigma_from_colour(lin, beta_n)], axis=-1) if invert else lin
+            terms = np.concatenate([lin, sigma_for_colour(lin)], axis=-1) if invert else lin
             return terms.astype(np.float32)
 
         terms = _per_vertex("colours", self.colours, counts, (3,), convert=colour_terms)

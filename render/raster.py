@@ -21,6 +21,7 @@ of any width, sub-pixel fibres included. Along the fibre, each pixel centre belo
 segment it projects into (t in [0, 1)), so joints of a straight polyline are not counted twice.
 """
 
+import numpy as np
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
@@ -121,6 +122,72 @@ def raster_triangles(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                         depth = q[0] * a[2] + q[1] * b[2] + q[2] * c[2]
                         ti.atomic_min(key[py, px], pack(depth, f))
 
+
+
+# sub-pixels per side where mesh edges are anti-aliased (`mark_mesh_edges`, `shade_mesh`)
+EDGE_SAMPLES = 3
+
+
+@ti.kernel
+def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: ti.i32,
+                    count: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                    edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                    sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """edge_index (H, W) = a slot (row of sub_key) for each pixel near a mesh edge: one of its
+    8 neighbours differs in showing a mesh, or in depth by over 2 %; -1 elsewhere (and past
+    `capacity` slots). The slot's EDGE_SAMPLES^2 keys are cleared; count[0]: slots taken
+    (start at 0). One thread per pixel."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    for py, px in mesh_key:
+        k = mesh_key[py, px]
+        is_edge = 0
+        for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
+            k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
+            if (k == empty_key()) != (k2 == empty_key()):
+                is_edge = 1
+            elif k != empty_key():
+                z1, z2 = key_depth(k), key_depth(k2)
+                if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
+                    is_edge = 1
+        slot = -1
+        if is_edge:
+            s = ti.atomic_add(count[0], 1)
+            if s < capacity:
+                slot = s
+                for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                    sub_key[s, j] = empty_key()
+        edge_index[py, px] = slot
+
+
+@ti.kernel
+def raster_edge_samples(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1),
+                        faces: ti.types.ndarray(dtype=vec3i, ndim=1), near: f32,
+                        edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                        sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+    """Depth-test n triangles at the EDGE_SAMPLES x EDGE_SAMPLES sub-pixel centres of the
+    pixels `mark_mesh_edges` gave a slot: sub_key[slot, dy * EDGE_SAMPLES + dx] = nearest
+    (depth, face). One thread per triangle."""
+    height, width = edge_index.shape[0], edge_index.shape[1]
+    for f in range(n):
+        a, b, c = screen[faces[f][0]], screen[faces[f][1]], screen[faces[f][2]]
+        area = edge(vec2f(a[0], a[1]), vec2f(b[0], b[1]), vec2f(c[0], c[1]))
+        if ti.min(a[2], b[2], c[2]) > near and ti.abs(area) > f32(1e-12):
+            x0 = ti.max(ti.cast(ti.floor(ti.min(a[0], b[0], c[0])), ti.i32), 0)
+            x1 = ti.min(ti.cast(ti.floor(ti.max(a[0], b[0], c[0])), ti.i32), width - 1)
+            y0 = ti.max(ti.cast(ti.floor(ti.min(a[1], b[1], c[1])), ti.i32), 0)
+            y1 = ti.min(ti.cast(ti.floor(ti.max(a[1], b[1], c[1])), ti.i32), height - 1)
+            for py in range(y0, y1 + 1):
+                for px in range(x0, x1 + 1):
+                    slot = edge_index[py, px]
+                    if slot >= 0:
+                        for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
+                            p = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
+                                      ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
+                            w = barycentric(a, b, c, p)
+                            if w[0] >= f32(0.0) and w[1] >= f32(0.0) and w[2] >= f32(0.0):
+                                q = perspective_weights(a, b, c, w)
+                                depth = q[0] * a[2] + q[1] * b[2] + q[2] * c[2]
+                                ti.atomic_min(sub_key[slot, dy * EDGE_SAMPLES + dx], pack(depth, f))
 
 @ti.func
 def coverage(p: vec2f, a: vec4f, b: vec4f, wa: f32, wb: f32) -> vec2f:
@@ -282,9 +349,11 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            alpha: ti.types.ndarray(dtype=f32, ndim=2),
            out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
-           image: ti.types.ndarray(dtype=u8, ndim=3)):
+           image: ti.types.ndarray(dtype=ti.u32, ndim=2)):
     """Box-filter scale x scale blocks of the supersampled rgb/alpha (H*s, W*s) down to
-    (H, W), and encode the image (H, W, 3) as 8-bit sRGB. One thread per output pixel."""
+    (H, W), and encode the image (H, W) as 8-bit sRGB packed R | G << 8 | B << 16 (a
+    little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
+    faster than three bytes, `unpack_image`). One thread per output pixel."""
     for py, px in out_alpha:
         c = vec3f(0.0, 0.0, 0.0)
         a = f32(0.0)
@@ -294,5 +363,13 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
         norm = f32(1.0) / ti.cast(scale * scale, f32)
         out_rgb[py, px] = c * norm
         out_alpha[py, px] = a * norm
+        word = ti.u32(0)
         for ch in ti.static(range(3)):
-            image[py, px, ch] = encode_srgb(c[ch] * norm)
+            word |= ti.cast(encode_srgb(c[ch] * norm), ti.u32) << ti.u32(8 * ch)
+        image[py, px] = word
+
+
+def unpack_image(packed) -> np.ndarray:
+    """(H, W, 3) uint8 sRGB from `finish`'s packed (H, W) image (a device ndarray)."""
+    words = np.ascontiguousarray(packed.to_numpy(), dtype="<u4")
+    return words.view(np.uint8).reshape(*words.shape, 4)[..., :3].copy()

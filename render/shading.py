@@ -19,8 +19,9 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, mat4f, unit, vec3f, vec4f
-from .geometry import _colour, srgb_to_linear
-from .raster import barycentric, empty_key, key_prim, perspective_weights, pixel_centre, vec3i
+from .colour import srgb_colour, srgb_to_linear
+from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
+                     vec2f, vec3i)
 from .runtime import buffer, ensure_init, upload
 from .shadows import transmittance
 
@@ -124,7 +125,7 @@ class Light:
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-9:
             raise ValueError(f"to_light must be a non-zero 3-vector, got {self.to_light!r}")
         object.__setattr__(self, "to_light", tuple(d / np.linalg.norm(d)))
-        object.__setattr__(self, "colour", tuple(_colour("colour", self.colour)))
+        object.__setattr__(self, "colour", tuple(srgb_colour("colour", self.colour)))
         if not self.intensity >= 0.0:
             raise ValueError(f"intensity must be >= 0, got {self.intensity}")
 
@@ -144,7 +145,7 @@ class Lighting:
     def __post_init__(self):
         if not isinstance(self.key, Light):
             raise ValueError(f"key must be a render.Light, got {type(self.key).__name__}")
-        object.__setattr__(self, "ambient", tuple(_colour("ambient", self.ambient)))
+        object.__setattr__(self, "ambient", tuple(srgb_colour("ambient", self.ambient)))
         if not self.ambient_intensity >= 0.0:
             raise ValueError(f"ambient_intensity must be >= 0, got {self.ambient_intensity}")
 
@@ -286,8 +287,34 @@ def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading())
     return {"diffuse": r[:, 0], "primary": r[:, 1], "secondary": r[:, 2]}
 
 
+@ti.func
+def mesh_sample(key: ti.i64, p2, screen: ti.template(), faces: ti.template(), x: ti.template(),
+                normal: ti.template(), albedo: ti.template(), material: ti.template(), eye: vec3f,
+                to_light: vec3f, light: vec3f, ambient: vec3f, sview: mat4f, sproj: vec4f,
+                z0: ti.template(), opacity: ti.template(), bounds: ti.template(),
+                smesh_key: ti.template(), sparams: vec4f, first: ti.i32) -> vec3f:
+    """Radiance of face key_prim(key) seen at screen point p2 [px]: position, normal and colour
+    interpolated perspective-correctly; the shadow lookup offset along the normal by two
+    shadow texels against self-shadow acne."""
+    f = key_prim(key)
+    ia, ib, ic = faces[f][0], faces[f][1], faces[f][2]
+    w = barycentric(screen[ia], screen[ib], screen[ic], p2)
+    q = perspective_weights(screen[ia], screen[ib], screen[ic], w)
+    p = q[0] * x[ia] + q[1] * x[ib] + q[2] * x[ic]
+    n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
+    v = unit(eye - p)
+    n_eye = ti.select(n.dot(v) < 0.0, -n, n)
+    shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
+                           opacity, bounds, smesh_key, sparams)
+    col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
+    return shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
+                         material[f][0], material[f][1])
+
+
 @ti.kernel
 def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+               edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
+               sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                screen: ti.types.ndarray(dtype=vec4f, ndim=1),
                faces: ti.types.ndarray(dtype=vec3i, ndim=1),
                x: ti.types.ndarray(dtype=vec3f, ndim=1),
@@ -300,30 +327,50 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                bounds: ti.types.ndarray(dtype=f32, ndim=1),
                smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f, first: ti.i32,
                base: ti.types.ndarray(dtype=vec3f, ndim=2)):
-    """base (H, W) = linear radiance of the visible mesh surface, or the background; with
-    `first` = 0 only the key light's direct term is added (one call per light). Position,
-    normal and colour are interpolated perspective-correctly from the face in mesh_key; the
-    shadow lookup is offset along the normal by two shadow texels against self-shadow acne.
-    One thread per pixel."""
+    """base (H, W) = linear radiance of the visible mesh surface over the background; with
+    `first` = 0 only this light's direct term is added (one call per light). edge_index,
+    sub_key: the slots of the pixels near mesh edges and their depth keys at the
+    EDGE_SAMPLES^2 sub-pixel centres (`raster.mark_mesh_edges`, `raster.raster_edge_samples`).
+    Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, or a
+    depth step of over 2 %: a silhouette) is the mean of its sub-pixels, each shaded on its own
+    face; any other pixel is shaded once at its centre. One thread per pixel."""
     for py, px in base:
         key = mesh_key[py, px]
-        c = background
-        if key != empty_key():
-            f = key_prim(key)
-            ia, ib, ic = faces[f][0], faces[f][1], faces[f][2]
-            p2 = pixel_centre(px, py)
-            w = barycentric(screen[ia], screen[ib], screen[ic], p2)
-            q = perspective_weights(screen[ia], screen[ib], screen[ic], w)
-            p = q[0] * x[ia] + q[1] * x[ib] + q[2] * x[ic]
-            n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
-            v = unit(eye - p)
-            n_eye = ti.select(n.dot(v) < 0.0, -n, n)
-            shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
-                                   opacity, bounds, smesh_key, sparams)
-            col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
-            c = shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
-                              material[f][0], material[f][1])
+        slot = edge_index[py, px]
+        n_mesh, z_lo, z_hi = 0, f32(3.0e38), f32(0.0)
+        full = EDGE_SAMPLES * EDGE_SAMPLES
+        if slot >= 0:
+            for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                k = sub_key[slot, j]
+                if k != empty_key():
+                    n_mesh += 1
+                    z = key_depth(k)
+                    z_lo = ti.min(z_lo, z)
+                    z_hi = ti.max(z_hi, z)
+        edge = slot >= 0 and ((n_mesh > 0 and n_mesh < full)
+                              or (n_mesh == full and z_hi > z_lo * f32(1.02)))
+        c = vec3f(0.0, 0.0, 0.0)
+        any_mesh = key != empty_key()
+        if edge:
+            any_mesh = True
+            for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
+                k = sub_key[slot, dy * EDGE_SAMPLES + dx]
+                if k != empty_key():
+                    p2 = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
+                               ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
+                    c += f32(1.0 / EDGE_SAMPLES ** 2) * mesh_sample(k, p2, screen, faces, x, normal, albedo,
+                                                 material, eye, to_light, light, ambient, sview,
+                                                 sproj, z0, opacity, bounds, smesh_key,
+                                                 sparams, first)
+                elif first:
+                    c += f32(1.0 / EDGE_SAMPLES ** 2) * background
+        elif any_mesh:
+            c = mesh_sample(key, pixel_centre(px, py), screen, faces, x, normal, albedo,
+                            material, eye, to_light, light, ambient, sview, sproj, z0, opacity,
+                            bounds, smesh_key, sparams, first)
+        else:
+            c = background
         if first:
             base[py, px] = c
-        elif key != empty_key():
+        elif any_mesh:
             base[py, px] = base[py, px] + c   # one thread per pixel: no atomic add

@@ -220,16 +220,6 @@ def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template()):
 
 
 @ti.kernel
-def sort_tiles(n_tiles: ti.i32, offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
-               items: ti.types.ndarray(dtype=ti.i64, ndim=1)):
-    """Sort each (tile, depth bin) cell's keys (`sort_bin`). One thread per tile."""
-    ti.loop_config(block_dim=1)
-    for tile in range(n_tiles):
-        for bin_ in range(N_BINS):
-            sort_bin(offsets[tile * N_BINS + bin_], offsets[tile * N_BINS + bin_ + 1], items)
-
-
-@ti.kernel
 def composite_tiles(width: ti.i32, height: ti.i32,
                     offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
                     items: ti.types.ndarray(dtype=ti.i64, ndim=1),
@@ -440,10 +430,3 @@ def composite_binned(bins: dict, hd: dict, mesh_key, base, out_rgb, out_alpha) -
                     hd["width_px"], hd["rgba"], mesh_key, bins["mesh_near"], base, out_rgb, out_alpha,
                     buffer("tile_probes", ti.i32, (bins["tiles"],)))
 
-
-def composite_hair(hd: dict, near, mesh_key, base, out_rgb, out_alpha) -> dict:
-    """Bin and composite uploaded, projected, shaded hair `hd` over `base` (H, W) in one call.
-    Returns {"fragments": segment-tile entries, "tiles": count}."""
-    bins = bin_hair(hd, near, mesh_key)
-    composite_binned(bins, hd, mesh_key, base, out_rgb, out_alpha)
-    return {"fragments": bins["fragments"], "tiles": bins["tiles"]}

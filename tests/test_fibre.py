@@ -78,7 +78,7 @@ def test_absorption_darkens_and_tints():
 
 def test_from_colour_inverts_chiang():
     m = HairMaterial.from_colour((0.55, 0.35, 0.2), beta_n=0.4)
-    lin = render.geometry.srgb_to_linear(np.array([0.55, 0.35, 0.2]))
+    lin = render.colour.srgb_to_linear(np.array([0.55, 0.35, 0.2]))
     np.testing.assert_allclose(m.colour(), lin, rtol=1e-6)
     assert m.beta_n == 0.4 and m.sigma_a[2] > m.sigma_a[0]
 
@@ -113,7 +113,7 @@ def test_invalid_input_names_the_parameter(make, name):
 @pytest.mark.parametrize("material", MATERIALS)
 def test_bsdf_matches_mitsuba(material):
     pytest.importorskip("mitsuba")
-    from render.mitsuba_check import mitsuba_fibre_scattering
+    from mitsuba_check import mitsuba_fibre_scattering
     light, eye = _grid_dirs()
     ours = render.fibre_scattering(material, TANGENT, light, eye)["S"]
     theirs = mitsuba_fibre_scattering(material, light, eye)
@@ -127,7 +127,7 @@ def test_images_match_mitsuba():
     max_depth 2) and by us (with shadows): mean hair colour within Delta E 3, and on the arc
     swatch the R and TRT highlights within 2 degrees along the arc."""
     pytest.importorskip("mitsuba")
-    from render.mitsuba_check import compare_images
+    from mitsuba_check import compare_images
     rows = compare_images(spp=32)
     for r in rows:
         assert r["delta_e"] < 3.0, r

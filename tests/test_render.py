@@ -11,7 +11,7 @@ import taichi as ti
 import render
 from render import (Camera, Hair, HairShading, Light, Lighting, Mesh, RenderSettings,
                     ShadowSettings, Turntable)
-from render.geometry import srgb_to_linear
+from render.colour import srgb_to_linear
 
 W, H = 64, 48
 FRONT = Camera(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0), fov_y=40.0, width=W, height=H)
@@ -460,3 +460,78 @@ def test_frame_does_not_depend_on_how_work_is_chunked(monkeypatch):
     assert frames[0]["alpha"].max() > 0.5
     for k in ("image", "rgb", "alpha"):
         np.testing.assert_array_equal(frames[0][k], frames[1][k])
+
+
+def test_asked_hair_colour_renders_as_that_colour():
+    """Six colours, platinum to black: the reference swatch (`render.swatch`, a seed other
+    than the stored response's) renders each within Delta E2000 3 of the colour asked. With
+    Chiang's inversion, used before, the swatch's plain mean was 12-23 away (brown as beige,
+    black as grey)."""
+    from render.swatch import colour_table
+    rows = colour_table(seed=2)
+    assert len(rows) == 6
+    for r in rows:
+        assert r["delta_e"] < 3.0, r
+
+
+def test_colour_response_inversion_is_monotone_and_bounded():
+    """sigma_for_colour: darker asks get more absorption, white none, and black the most."""
+    from render.colour import response_sigma_grid, sigma_for_colour
+    grey = np.linspace(0.0, 1.0, 11)[:, None] * np.ones(3)
+    s = sigma_for_colour(grey)
+    assert np.all(np.diff(s, axis=0) <= 0.0)
+    assert np.allclose(s[-1], 0.0)
+    assert np.all(s[0] <= response_sigma_grid()[-1])
+
+
+def test_delta_e2000_matches_sharma_pairs():
+    """CIEDE2000 on pairs from Sharma, Wu & Dalal (2005), table 1."""
+    from render.colour import delta_e2000
+    pairs = [((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
+             ((50.0, -1.3802, -84.2814), (50.0, 0.0, -82.7485), 1.0000),
+             ((50.0, 2.5, 0.0), (73.0, 25.0, -18.0), 27.1492),
+             ((2.0776, 0.0795, -1.1350), (0.9033, -0.0636, -0.5514), 0.9082)]
+    for a, b, want in pairs:
+        assert abs(float(delta_e2000(a, b)) - want) < 1e-3
+
+
+def test_mesh_edges_are_antialiased():
+    """A sphere's silhouette at one sample per pixel against the same frame supersampled 4 x 4:
+    edge pixels blend mesh and background as the supersampled frame does (before: each pixel
+    all mesh or all background, 46 pixels off by > 0.05, up to 0.52)."""
+    from render.bench import sphere_mesh
+    cam = Camera(eye=(0.0, 0.0, 0.5), target=(0.0, 0.0, 0.0), fov_y=30.0, width=64, height=48)
+    m = sphere_mesh(radius=0.08)
+    one = render.render_buffers(cam, meshes=[m], background=(0.1, 0.1, 0.1))["rgb"]
+    ref = render.render_buffers(cam, meshes=[m], background=(0.1, 0.1, 0.1),
+                                settings=RenderSettings(supersample=4))["rgb"]
+    d = np.abs(one - ref).max(axis=-1)
+    assert d.max() < 0.2 and (d > 0.05).sum() < 15, (d.max(), (d > 0.05).sum())
+
+
+def test_subject_fraction_measures_rows_off_the_backdrop():
+    """contact.subject_fraction: a 30-row block on a 100-row backdrop is 0.30 of the height;
+    noise within the tolerance is backdrop; a blank frame is 0."""
+    from render.contact import subject_fraction
+    img = np.full((100, 80, 3), 82, np.uint8)
+    img[::7, ::5] += 3
+    assert subject_fraction(img) == 0.0
+    img[40:70, 10:20] = (150, 110, 60)
+    assert abs(subject_fraction(img) - 0.30) < 1e-9
+
+
+def test_tight_fit_keeps_every_point_in_frame_and_fills_more():
+    """fit_camera(tight=True) on a sphere's points: every point projects inside the frame,
+    the sphere spans more of the frame's height than with the box's corners fitted, and the
+    tightest point touches the frame within the margin."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(4000, 3))
+    p = 0.1 * p / np.linalg.norm(p, axis=1, keepdims=True)
+    spans = []
+    for tight in (False, True):
+        cam = render.fit_camera(p, direction=(0.0, 1.0, 0.25), width=320, height=240,
+                                margin=1.02, tight=tight)
+        s = cam.project(p)
+        assert s[:, 0].min() >= 0 and s[:, 0].max() <= 320 and s[:, 1].min() >= 0 and s[:, 1].max() <= 240
+        spans.append((s[:, 1].max() - s[:, 1].min()) / 240)
+    assert spans[1] > spans[0] * 1.1 and spans[1] > 0.9, spans

@@ -39,9 +39,9 @@ class Shot:
     """How a scene is filmed: frames at fps (one frame = 1/fps s of simulated time), the
     simulator's largest step dt [s] (at most one frame; fitted down so that whole steps fill a
     frame, see `frame_dt`), image size, a look-at camera (eye, target [m], vertical fov [deg], z up;
-    None: fitted to the head, neck and hair, seen from `view`, a direction from the subject
-    towards the eye, with room for the hair to move `reach` x its longest strand sideways and
-    down) orbiting `orbit_degrees` about the vertical through the target over the shot (a
+    None: fitted to the head and hair, seen from `view`, a direction from the subject
+    towards the eye, with room for the hair to move `reach` x its longest strand sideways)
+    orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
     and fibre width [m], supersampling, and what `--usd` writes: "guides" (the simulated
     strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both"."""
@@ -190,20 +190,24 @@ class FrameWriter:
             width=shot.width, height=shot.height)
 
     def _fitted(self, scene):
-        """The camera fitted to what the shot can show: head, capsules and the rest groom, its
-        box grown by shot.reach x the longest strand sideways and down (moving hair); for an
-        orbit, that box turned about the vertical every 15 degrees."""
+        """The camera fitted to the subject: every point of the head and the rest groom inside
+        the frame (`fit_camera(tight=True)`; the neck and shoulders below may leave it: head
+        and hair fill it), the groom also moved by shot.reach x the longest strand either way
+        across the image (moving hair; hanging hair rises as it swings, so not down); for an
+        orbit, all that turned about the vertical every 15 degrees."""
         groom = scene.groom
         pts = [groom.positions[s, : groom.node_counts[s]] for s in range(groom.n_strands)]
         length = max(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pts)
-        parts = pts + [m.vertices for m in self.capsules]
-        if self.mesh is not None:
-            parts.append(np.asarray(self.mesh[0]))
-        allp = np.concatenate(parts)
+        hair = np.concatenate(pts)
+        head = np.asarray(self.mesh[0]) if self.mesh is not None else hair[:1]
+        allp = np.concatenate([hair, head])
         lo, hi = allp.min(axis=0), allp.max(axis=0)
         grow = self.shot.reach * length
-        lo, hi = lo - grow, hi + np.array([grow, grow, 0.0])
-        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        # room to move across the image (hair moving towards the camera hardly grows its picture)
+        view = np.asarray(self.shot.view, float)
+        side = np.cross(view, (0.0, 0.0, 1.0))
+        side = grow * side / max(float(np.linalg.norm(side)), 1e-12)
+        box = np.concatenate([head, hair - side, hair + side])
         if self.shot.orbit_degrees:
             c = 0.5 * (lo + hi)
             turn = lambda a: np.array([[math.cos(a), -math.sin(a), 0.0],
@@ -211,7 +215,7 @@ class FrameWriter:
             box = np.concatenate([(box - c) @ turn(math.radians(a)).T + c for a in range(0, 360, 15)])
         return self.render.fit_camera(box, direction=self.shot.view, up=(0.0, 0.0, 1.0),
                                       fov_y=self.shot.fov_y, width=self.shot.width,
-                                      height=self.shot.height, margin=1.02)
+                                      height=self.shot.height, margin=1.02, tight=True)
 
     def camera(self, frame):
         angle = math.radians(self.shot.orbit_degrees * frame / max(self.shot.frames, 1))

@@ -1,6 +1,6 @@
 """Our fibre shading against Mitsuba 3's `hair` BSDF (an independent path tracer).
 
-    python -m render.mitsuba_check [--out out/mitsuba] [--spp 64]
+    python tests/mitsuba_check.py [--out out/mitsuba] [--spp 64]
 
 needs the optional `mitsuba` package (pip install mitsuba; the `scalar_rgb` variant is used).
 Prints (a) the BSDF-level table: our h-averaged far-field scattering S(wi, wo) against
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
-from .fibre import HairMaterial
-from .geometry import Hair, Mesh
-from .shading import AmbientLight, DirectionalLight
+from render.camera import Camera
+from render.fibre import HairMaterial
+from render.geometry import Hair, Mesh
+from render.shading import AmbientLight, DirectionalLight
 
 
 def _mitsuba():
@@ -146,7 +146,7 @@ def _sphere_mesh(centre, radius, n: int = 48) -> Mesh:
 
 def render_ours(scene: Scene, material: HairMaterial, supersample: int = 2) -> dict:
     """Our render: {"rgb" (H, W, 3) linear, "alpha" (H, W)} on black."""
-    from .frame import RenderSettings, ShadowSettings, render_buffers
+    from render.frame import RenderSettings, ShadowSettings, render_buffers
     hair = Hair(points=scene.points, widths=scene.width, material=material)
     meshes = [] if scene.sphere is None else [_sphere_mesh(*scene.sphere)]
     settings = RenderSettings(supersample=supersample, layers=8, multiple_scattering=False,
@@ -274,7 +274,7 @@ def compare_images(spp: int = 64, out_dir=None, lights_deg=(-20.0, 0.0, 25.0),
                 row[f"r_{key}"] = peak(angle, colour[:, 2])
                 row[f"trt_{key}"] = peak(angle, colour[:, 0] - colour[:, 2])
         if out_dir is not None:
-            from .video import write_png
+            from render.video import write_png
             out_dir = Path(out_dir)
             slug = name.replace(" ", "_").replace(",", "").replace("+", "p").replace("-", "m")
             for key, out in (("ours", ours), ("mitsuba", theirs)):
@@ -292,7 +292,7 @@ def _encode(rgb) -> np.ndarray:
 def bsdf_table() -> list[dict]:
     """Max and mean relative error of our S against Mitsuba's over a grid of 125 angle
     triples (theta_i, theta_o, phi), per material."""
-    from .fibre import fibre_scattering
+    from render.fibre import fibre_scattering
     g = np.radians(np.array([(a, b, c) for a in (-60, -30, 0, 20, 45) for b in (-50, -20, 0, 10, 40)
                              for c in (0, 45, 90, 150, 180)], float))
     light = np.stack([np.cos(g[:, 0]) * np.cos(g[:, 2]), np.sin(g[:, 0]),
@@ -313,7 +313,7 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="out/mitsuba")
     p.add_argument("--spp", type=int, default=64)
     args = p.parse_args(argv)
-    from .runtime import init
+    from render.runtime import init
     init("cpu")
     print("BSDF level (relative error, |S| floored at 2 % of its maximum):")
     for r in bsdf_table():
