@@ -32,6 +32,7 @@ from ..rods.groom import Groom
 from ..rods.materials import Material
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
+from .stamp import stamp
 
 STEPS_MS = (1, 2, 4, 8, 16)
 CANTILEVER_MS = (0.25, 0.5, 1, 2, 4, 8, 16)
@@ -195,8 +196,9 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
     from .. import runtime
     module = load_scene_module(script) if scene_rows else None  # the cantilever alone needs no scene
     runtime.init(precision=getattr(module, "PRECISION", "float32"))
-    result = {"scene": str(script), "precision": runtime.precision(), "speed": [], "accuracy": None,
-              "every": every, "seconds": seconds,
+    result = {"report": "implicit", "stamp": stamp(), "scene": str(script), "precision": runtime.precision(),
+              "speed": [], "accuracy": None, "every": every, "seconds": seconds, "frames": frames,
+              "reference_dt": reference_dt, "steps_ms": list(steps_ms), "scene_rows": scene_rows,
               "cantilever": cantilever_rows(log) if cantilever else []}
     if scene_rows:
         scene = module.build()

@@ -62,6 +62,7 @@ from ..world.scene import PROJECTIONS
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
 from ..validation import cli_real, one_line_parser_class
+from .stamp import stamp
 
 REPORT_MARK = "-- taichi_hair report json --"
 BEAM_LENGTH = 1.0
@@ -490,7 +491,8 @@ def accuracy_report(quick: bool, precisions=("float32", "float64"), out_dir="out
             r["error"] = float(np.linalg.norm(np.subtract(r["tip"], reference["tip"])) / HELIX_LENGTH)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    result = {"arch": arch, "precisions": precisions, "sweep": asdict(sweep), "rows": rows,
+    result = {"report": "accuracy", "stamp": stamp(), "quick": bool(quick),
+              "arch": arch, "precisions": precisions, "sweep": asdict(sweep), "rows": rows,
               "helix_reference": reference, "json": str(out / "accuracy.json"), "png": str(out / "accuracy.png"),
               "timing": f"wall_s: median of {sweep.repeats} timed runs of the stepping (1 if a run "
                         "takes over 2 s) after a warm-up run of the same configuration (compile excluded)"}
@@ -1065,7 +1067,8 @@ def stability_report(quick: bool, out_dir="out/reports", cases=None, duration: f
                 rows[k] = row
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    result = {"arch": arch, "precisions": wanted, "duration": duration, "quick": bool(quick), "cases": rows,
+    result = {"report": "stability", "stamp": stamp(), "arch": arch, "precisions": wanted, "duration": duration,
+              "quick": bool(quick), "overrides": overrides, "cases": rows,
               "counts": stability_counts(rows), "failures": sum(r["status"] == "FAIL" for r in rows),
               "wall_s": sum(r["wall_s"] for r in rows), "json": str(out / "stability.json")}
     Path(result["json"]).write_text(json.dumps(result, indent=1))
