@@ -22,16 +22,22 @@ Everything printed is measured here; the JSON goes to --out.
 
 import json
 import statistics
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from .. import runtime
 from ..rods.groom import Groom
 from ..rods.materials import Material
+from ..rods.references import cantilever_first_frequency, first_mode_slope
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
+from ..validation import cli_int, cli_real
+from .accuracy_report import amplitude_loss_per_period, clamped_beam, oscillation_frequency, sample_tip_z
+from .runner import load_scene_module
 from .stamp import stamp
 
 STEPS_MS = (1, 2, 4, 8, 16)
@@ -143,10 +149,8 @@ def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, lo
 def cantilever_row(dt: float, integrator: str, periods: float = CANTILEVER_PERIODS) -> dict:
     """The real-hair cantilever's first mode (module doc) at `dt` [s] with `integrator`, over
     `periods` periods; wall_s [s] is the stepping time (compilation included on a first run)."""
-    from .reports import (amplitude_loss_per_period, beam_frequency, clamped_beam, first_mode_slope,
-                          oscillation_frequency, sample_tip_z)
     material = Material()
-    expected = beam_frequency(CANTILEVER_LENGTH, material.bending_stiffness[0], material.linear_density)
+    expected = cantilever_first_frequency(CANTILEVER_LENGTH, material.bending_stiffness[0], material.linear_density)
     bent = clamped_beam(CANTILEVER_SEGMENTS, length=CANTILEVER_LENGTH,
                         slope=lambda s: 0.01 * CANTILEVER_LENGTH * first_mode_slope(s, CANTILEVER_LENGTH))
     sim = Simulator(clamped_beam(CANTILEVER_SEGMENTS, length=CANTILEVER_LENGTH), material, dt=dt,
@@ -192,8 +196,6 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
     """scene_rows: the scene's speed and accuracy rows (at steps_ms [ms]); cantilever: the
     cantilever rows. Writes implicit.json, and implicit.png (tip error against wall time, both
     integrators, log-log) when there are accuracy rows."""
-    from .runner import load_scene_module
-    from .. import runtime
     module = load_scene_module(script) if scene_rows else None  # the cantilever alone needs no scene
     runtime.init(precision=getattr(module, "PRECISION", "float32"))
     result = {"report": "implicit", "stamp": stamp(), "scene": str(script), "precision": runtime.precision(),
@@ -264,7 +266,6 @@ def format_implicit(result: dict) -> str:
 
 
 def add_parser(sub) -> None:
-    from ..validation import cli_int, cli_real
     p = sub.add_parser("implicit", help="the implicit step against the explicit one: speed and accuracy "
                                         "against a tiny-step reference on a scene")
     p.add_argument("--scene", default="scenes/shake_curly.py")
@@ -294,7 +295,6 @@ def _steps(text: str) -> tuple:
 
 
 def _main(args) -> int:
-    import sys
     result = implicit_report(args.scene, frames=args.frames, every=args.every, seconds=args.seconds,
                              reference_dt=args.reference_dt, out_dir=args.out,
                              scene_rows=not args.cantilever_only, cantilever=not args.no_cantilever,
