@@ -322,7 +322,8 @@ def synthetic_reports(folder):
     case = {"precision": "float32", "conservative": True, "wall_s": 4.0, "measured_residual": 3.5e-7,
             "max_speed": 1.25, "stable_dt": 0.0004}
     cases = [{**case, "name": "soft case", "status": "stable", "outcome": "stable", "energy_max_rise": 4.5e-6},
-             {**case, "name": "strict case", "status": "refused", "outcome": "refused: dt | past the bound " + "x" * 300,
+             {**case, "name": "strict case", "status": "refused",
+              "outcome": "refused: dt | past the bound " + "x" * 300,
               "energy_max_rise": None}]
     stability = {"report": "stability", "stamp": {**stamp, "commit": "def5678"}, "arch": "cpu",
                  "precisions": ["float32"], "duration": 0.05, "quick": True, "overrides": {}, "cases": cases,
