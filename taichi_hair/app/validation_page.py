@@ -14,7 +14,7 @@ from .stamp import STAMP_FIELDS, stamp
 
 # report -> (its file, the keys the page reads, the command that writes it)
 REPORTS = {
-    "accuracy": ("accuracy.json", ("sweep", "precisions", "rows", "helix_reference", "quick"),
+    "accuracy": ("accuracy.json", ("sweep", "precisions", "rows", "helix_reference", "quick", "timing"),
                  "taichi-hair report accuracy --quick"),
     "stability": ("stability.json", ("cases", "counts", "duration", "precisions", "quick", "thresholds"),
                   "taichi-hair report stability --quick"),
@@ -58,8 +58,7 @@ shooting on the root moment, RK4). Errors: cantilever and helix |tip - tip_ref| 
 |f / f_beam - 1|; curl |tip - tip_ref| / |drop|, drop the reference tip's displacement under
 gravity. The `curl ...` rows use the rotation strain measure (the default), `... der` the DER
 measure (`strain="der"`), `... edge` DER with the first edge held rigid (`root="edge"`); helix
-rows name their twist update. Wall time is the stepping of one run after a warm-up run of the
-same configuration ({timing}).
+rows name their twist update. Wall time: {timing}.
 
 {stamp}
 
@@ -247,7 +246,7 @@ def accuracy_tables(r: dict) -> str:
             body.append([label[key]] + [f"{number(by_n[n]['error'])} ({by_n[n]['wall_s']:.2f} s)" if n in by_n
                                         else "" for n in segments] + [ratios or "-"])
         out += [f"{precision}, dt {1e3 * w['base_dt']:g} ms: error (wall time) by segment count, and the error's "
-                "ratio from one column to the next (about 4 per halving: second order)", "",
+                "ratio from one column to the next (second order divides it by about 4 per halving)", "",
                 table(["case"] + [f"{n} seg" for n in segments] + ["ratios"], body), ""]
         steps = sorted({x["dt"] for x in rows if x["segments"] == w["dt_segments"]})
         body = []
@@ -335,7 +334,7 @@ def render_page(reports: dict, page_stamp: dict) -> str:
     parts = [HEADER.format(date=page_stamp["date"], commit=page_stamp["commit"], runs=runs)]
     if "accuracy" in reports:
         r = reports["accuracy"]
-        parts.append(ACCURACY.format(timing=r.get("timing", "compile excluded"), stamp=stamp_line("accuracy", r),
+        parts.append(ACCURACY.format(timing=r["timing"], stamp=stamp_line("accuracy", r),
                                      tables=accuracy_tables(r)))
     else:
         parts.append(MISSING.format(title="Accuracy", command=REPORTS["accuracy"][2]))
