@@ -9,7 +9,7 @@ import pytest
 import taichi_hair as th
 from render.plot import Series, draw_text, loglog
 from render.video import read_png
-from taichi_hair.app import reports, stability_report as stability_module
+from taichi_hair.app import reports, stability_report as stability_module, validation_page
 from taichi_hair.rods.references import cantilever_elastica_tip, cantilever_first_frequency, first_mode_slope
 from taichi_hair.app.accuracy_report import (CURL_AXES, CURL_VARIANTS, HELIX_LENGTH, AccuracySweep, accuracy_report,
                                              amplitude_loss_per_period, clamped_helix, oscillation_frequency)
@@ -372,3 +372,23 @@ def test_markdown_refuses_a_missing_or_bad_report_folder(tmp_path, capsys, make,
     err = capsys.readouterr().err.strip()
     assert message in err and "--reports" in err and len(err.splitlines()) == 1
     assert not page.exists()
+
+
+def test_markdown_page_shows_the_implicit_report(tmp_path):
+    """A cantilever-only implicit.json (as `report implicit --cantilever-only` writes it) gets its
+    section: its stamp, settings and the frequency and damping rows from the file."""
+    synthetic_reports(tmp_path)
+    stamp = {**json.loads((tmp_path / "accuracy.json").read_text())["stamp"], "commit": "fed9876"}
+    rows = [{"integrator": i, "dt": 0.004, "substeps": s, "wall_s": 1.5, "frequency_hz": 1.6789, "expected_hz": 1.7,
+             "frequency_error": e, "loss_per_period": loss}
+            for i, s, e, loss in (("explicit", 3, -0.0123, 2.5e-5), ("implicit", 1, -0.0456, 0.0321))]
+    implicit = {"report": "implicit", "stamp": stamp, "scene": "scenes/shake_curly.py", "precision": "float32",
+                "speed": [], "accuracy": None, "every": 10, "seconds": 0.5, "frames": 12, "reference_dt": 1e-4,
+                "steps_ms": [1, 2], "scene_rows": False, "cantilever": rows}
+    (tmp_path / "implicit.json").write_text(json.dumps(implicit))
+    text = validation_page.render_page(validation_page.load_reports(tmp_path), stamp)
+    section = text[text.index("## The implicit step"):text.index("## Sag-free start")]
+    assert "fed9876" in section and "(cantilever only, float32)" in section
+    assert "| implicit | 4 | 1 | 1.6789 | -4.56e-02 | 0.0321 | 1.50 |" in section
+    assert "| explicit | 4 | 3 | 1.6789 | -1.23e-02 | 2.5e-05 | 1.50 |" in section
+    assert "first mode 1.7 Hz" in section
