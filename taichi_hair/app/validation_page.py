@@ -286,7 +286,8 @@ def stability_sections(r: dict) -> dict:
         if rises:
             rise, name = max(rises)
             energy.append(f"{p}: the largest energy rise of the {len(rises)} undamped, undriven cases is "
-                          f"{number(rise, 2)} of the energy in play ({name}).")
+                          f"{number(rise, 2)} of the energy in play ({name})." if rise > 0 else
+                          f"{p}: none of the {len(rises)} undamped, undriven cases gained energy.")
     body = []
     for c in r["cases"]:
         outcome = " ".join(c["outcome"].split()).replace("|", "/")
