@@ -198,7 +198,7 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
     integrators, log-log) when there are accuracy rows."""
     module = load_scene_module(script) if scene_rows else None  # the cantilever alone needs no scene
     runtime.init(precision=getattr(module, "PRECISION", "float32"))
-    result = {"report": "implicit", "stamp": stamp(), "scene": str(script), "precision": runtime.precision(),
+    result = {"report": "implicit", "stamp": None, "scene": str(script), "precision": runtime.precision(),
               "speed": [], "accuracy": None, "every": every, "seconds": seconds, "frames": frames,
               "reference_dt": reference_dt, "steps_ms": list(steps_ms), "scene_rows": scene_rows,
               "cantilever": cantilever_rows(log) if cantilever else []}
@@ -209,6 +209,7 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
         dt = shot.dt if shot is not None else 1e-3
         result["speed"] = speed_rows(scene, dt, frames, frame_s, log) if frames else []
         result["accuracy"] = accuracy_rows(subset(scene, every), seconds, reference_dt, frame_s, log, steps_ms)
+    result["stamp"] = stamp()  # when and where it was measured: at the end, as the other reports
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "implicit.json").write_text(json.dumps(result, indent=1))
