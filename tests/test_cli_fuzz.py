@@ -111,6 +111,8 @@ def _cases():
         (["report", "implicit", "--steps-ms", ""], "--steps-ms"),
         (["report", "implicit", "--cantilever-only", "--no-cantilever"], "--no-cantilever"),
         (["report", "implicit", "--scene", MISSING, "--no-cantilever", "--out", "OUT"], MISSING),
+        (["report", "markdown", "--reports", MISSING], "--reports"),
+        (["report", "markdown", "--reports", ".", "--out", "OUT/x.md"], "--reports"),
         (["report", "nothing"], "report"),
         (["report"], "report"),
         (["frobnicate"], "frobnicate"),

@@ -29,7 +29,7 @@ from helpers import run_cli as run
 import taichi_hair as th
 from taichi_hair.app import cli
 from taichi_hair.app import cluster
-from taichi_hair.app import reports
+from taichi_hair.app import accuracy_report, stability_cases, stability_report
 from taichi_hair.app.runner import Shot
 from taichi_hair.app.settings import apply_settings, parse_setting, point_name, sweep_points
 from taichi_hair.app.sweep import contact_sheet
@@ -266,19 +266,19 @@ def _without_wall(rows):
 
 
 def test_stability_report_on_a_cluster_gives_the_serial_rows(client, tmp_path):
-    cases = [c for c in reports.stability_cases(True) if c.precision == "float64"][:3]
-    cases.append([c for c in reports.stability_cases(True) if c.precision == "float32"][0])
-    serial = reports.stability_report(True, tmp_path / "s", cases=cases, duration=0.02)
-    spread = reports.stability_report(True, tmp_path / "c", cases=cases, duration=0.02, client=client)
+    cases = [c for c in stability_cases.stability_cases(True) if c.precision == "float64"][:3]
+    cases.append([c for c in stability_cases.stability_cases(True) if c.precision == "float32"][0])
+    serial = stability_report.stability_report(True, tmp_path / "s", cases=cases, duration=0.02)
+    spread = stability_report.stability_report(True, tmp_path / "c", cases=cases, duration=0.02, client=client)
     assert _without_wall(spread["cases"]) == _without_wall(serial["cases"])
     assert spread["counts"] == serial["counts"] and spread["precisions"] == serial["precisions"]
 
 
 def test_accuracy_report_on_a_cluster_gives_the_serial_errors(client, tmp_path):
-    sweep = reports.AccuracySweep(cantilever_segments=(8,), frequency_segments=(8,), helix_segments=(6,),
+    sweep = accuracy_report.AccuracySweep(cantilever_segments=(8,), frequency_segments=(8,), helix_segments=(6,),
                                   curl_segments=(), dts=(), twists=("quasistatic",), reference_factor=2, repeats=1)
-    serial = reports.accuracy_report(True, ["float64"], tmp_path / "s", sweep=sweep)
-    spread = reports.accuracy_report(True, ["float64"], tmp_path / "c", sweep=sweep, client=client)
+    serial = accuracy_report.accuracy_report(True, ["float64"], tmp_path / "s", sweep=sweep)
+    spread = accuracy_report.accuracy_report(True, ["float64"], tmp_path / "c", sweep=sweep, client=client)
     assert [r["case"] for r in spread["rows"]] == ["cantilever", "frequency", "helix"]
     assert _without_wall(spread["rows"]) == _without_wall(serial["rows"])
     assert spread["helix_reference"]["tip"] == serial["helix_reference"]["tip"]

@@ -1,5 +1,5 @@
 """The continuum Kirchhoff reference (taichi_hair/rods/continuum.py) against closed forms, the planar
-elastica of tests/references.py, Groom.curly's geometry, and its own balance equations."""
+elastica of taichi_hair/rods/references.py, Groom.curly's geometry, and its own balance equations."""
 
 import functools
 import math
@@ -11,7 +11,7 @@ import pytest
 import taichi_hair as th
 from taichi_hair.rods.continuum import curly_root_frame, hanging_helix, helix_strains, kirchhoff_static
 
-from references import cantilever_elastica_tip
+from taichi_hair.rods.references import cantilever_elastica_tip
 
 # the reference hanging helix: 3 turns of radius 5 cm, pitch 5 cm; rod radius 1 cm, E 1e7 Pa
 CURL_RADIUS, CURL_PITCH, TURNS = 0.05, 0.05, 3

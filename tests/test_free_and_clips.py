@@ -11,7 +11,7 @@ import pytest
 import taichi_hair as th
 
 from helpers import force_jacobian
-from references import greenhill_critical_moment
+from taichi_hair.rods.references import greenhill_critical_moment
 
 CURLY_ELLIPTIC = th.Material(youngs_modulus=3e9, shear_modulus=1e9, radius=5e-5, density=1300.0,
                              ellipticity=4.0)

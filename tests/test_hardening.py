@@ -372,17 +372,17 @@ def test_float32_fine_hair_keeps_its_energy(tmp_path):
     (196 substeps) +6.6 %; and from the rounding of float32 positions themselves: E 1e10 at 1 mm
     segments (222 substeps of a 2 ms step) +2.0 %. Run in float32 (a worker process), judged by
     the stability report's own rule (ENERGY_RISE_FAIL)."""
-    from taichi_hair.app import reports
-    cases = [reports.StabilityCase(name="1 mm segments", segment=0.001),
-             reports.StabilityCase(name="tight elliptic curl", curl_radius=0.005, segment=0.0025,
+    from taichi_hair.app import stability_cases, stability_report
+    cases = [stability_cases.StabilityCase(name="1 mm segments", segment=0.001),
+             stability_cases.StabilityCase(name="tight elliptic curl", curl_radius=0.005, segment=0.0025,
                                    ellipticity=4.0, twist="kmoch"),
-             reports.StabilityCase(name="stiff, 1 mm segments, 2 ms", youngs_modulus=1e10, segment=0.001,
+             stability_cases.StabilityCase(name="stiff, 1 mm segments, 2 ms", youngs_modulus=1e10, segment=0.001,
                                    dt=2e-3)]
-    result = reports.stability_report(False, tmp_path, cases=cases, duration=0.2)
+    result = stability_report.stability_report(False, tmp_path, cases=cases, duration=0.2)
     for row in result["cases"]:
         assert row["precision"] == "float32"
         assert row["status"] == "substepped", row["outcome"]
-        assert row["energy_max_rise"] < reports.ENERGY_RISE_FAIL, row
+        assert row["energy_max_rise"] < stability_report.ENERGY_RISE_FAIL, row
 
 
 def test_float32_hair_far_from_the_origin_moves_as_at_the_origin():

@@ -15,7 +15,7 @@ from taichi_hair.rods import arrays
 from taichi_hair.rods.linalg import block_pentadiagonal_solve
 from taichi_hair.solver.system import RodSystem
 from helpers import force_jacobian
-from references import cantilever_elastica_tip, cantilever_first_frequency
+from taichi_hair.rods.references import cantilever_elastica_tip, cantilever_first_frequency
 from test_pins import crossing_times, pendulum
 from test_step import BEAM, LENGTH, clamped_beam
 
@@ -258,10 +258,10 @@ def test_stiff_fine_strands_at_a_large_step_never_gain_energy():
     matrix's case): one length correction left edges ~3e-5 off, the fast projection took that
     up as a kink and the energy rose by 3.5 % of the energy in play; corrections repeat until
     the edges are within CORRECTION_TOL. Judged by the stability report's own energy rule."""
-    from taichi_hair.app import reports
-    case = reports.StabilityCase(name="stiff fine, 20 ms", youngs_modulus=1e11, segment=1e-3, dt=2e-2,
+    from taichi_hair.app import stability_cases, stability_report
+    case = stability_cases.StabilityCase(name="stiff fine, 20 ms", youngs_modulus=1e11, segment=1e-3, dt=2e-2,
                                  integrator="implicit")
-    row = reports.run_stability_case(case, 0.2)
+    row = stability_report.run_stability_case(case, 0.2)
     print(f"\nE 1e11, 1 mm, dt 20 ms, implicit: {row['outcome']}, energy rise "
           f"{row['energy_max_rise']:.2e} of the energy in play")
     assert row["status"] == "stable"
@@ -274,9 +274,9 @@ def test_tight_curls_resting_on_a_head_never_gain_energy():
     out of the head kinked the stiff curls in the metric M and the energy rose by 0.74 of the
     energy in play in 0.2 s (or the step diverged); the length correction now takes the contacts
     as springs in the step's own metric. Judged by the stability report's own energy rule."""
-    from taichi_hair.app import reports
-    case = next(c for c in reports.stability_cases(False) if c.name == "head, curl 5 mm")
-    row = reports.run_stability_case(replace(case, integrator="implicit"), 0.2)
+    from taichi_hair.app import stability_cases, stability_report
+    case = next(c for c in stability_cases.stability_cases(False) if c.name == "head, curl 5 mm")
+    row = stability_report.run_stability_case(replace(case, integrator="implicit"), 0.2)
     print(f"\ncurls on a head, implicit: {row['outcome']}, energy rise {row['energy_max_rise']:.2e} of "
           f"the energy in play, deepest node {row['penetration']:.3f} margins")
     assert row["status"] == "stable"

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
-from references import curve_points
+from taichi_hair.rods.references import curve_points
 
 import taichi_hair as th
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.app import reports
+from taichi_hair.app import stability_cases, stability_report
 from helpers import energy_rise
 from test_pins import crossing_times, pendulum
 
@@ -98,8 +98,8 @@ def test_shake_on_tight_curls_resting_on_a_head_gains_no_energy():
     at a step's start takes the fast projection for that step, and the energy never rises by
     more than the report's 1e-2 of the energy in play (measured 0; SHAKE with the pushes gained
     0.182 in float64, 0.179 in float32)."""
-    case = {c.name: c for c in reports.stability_cases(False)}["head, curl 5 mm"]
-    row = reports.run_stability_case(replace(case, projection="shake"), 0.2)
+    case = {c.name: c for c in stability_cases.stability_cases(False)}["head, curl 5 mm"]
+    row = stability_report.run_stability_case(replace(case, projection="shake"), 0.2)
     print(f"\nshake, head, curl 5 mm: {row['outcome']}, energy rise {row['energy_max_rise']:.1e}")
     assert row["status"] in ("stable", "substepped"), row["outcome"]
-    assert row["energy_max_rise"] < reports.ENERGY_RISE_FAIL
+    assert row["energy_max_rise"] < stability_report.ENERGY_RISE_FAIL

@@ -7,7 +7,7 @@ import pytest
 
 import taichi_hair as th
 from helpers import rotation_matrix
-from references import cantilever_elastica_tip, cantilever_first_frequency, first_mode_slope
+from taichi_hair.rods.references import cantilever_elastica_tip, cantilever_first_frequency, first_mode_slope
 
 BEAM = dict(youngs_modulus=1e7, shear_modulus=1e7 / 3, radius=0.01, density=1000.0)
 LENGTH = 1.0

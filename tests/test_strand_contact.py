@@ -4,7 +4,7 @@ points by golden-section search, pair sets by an O(n^2) search, and hand-built c
 import numpy as np
 import pytest
 import taichi as ti
-from references import curve_points
+from taichi_hair.rods.references import curve_points
 
 from taichi_hair.rods import arrays
 from taichi_hair.rods.arrays import Vec3s1

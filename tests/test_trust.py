@@ -12,7 +12,7 @@ import pytest
 import taichi_hair as th
 from taichi_hair.app import implicit_report as implicit_module
 from taichi_hair.app.outdir import LOCK_FILE, STATE_FILE, claim_out_dir
-from taichi_hair.app.reports import stability_report
+from taichi_hair.app.stability_report import stability_report
 from taichi_hair.app.runner import MAX_IMAGE_PIXELS, SceneScriptError, Shot, _checkpoint, load_scene_module
 from taichi_hair.app.settings import sweep_points
 from taichi_hair.app.cli import main as cli_main

@@ -22,16 +22,23 @@ Everything printed is measured here; the JSON goes to --out.
 
 import json
 import statistics
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from .. import runtime
 from ..rods.groom import Groom
 from ..rods.materials import Material
+from ..rods.references import cantilever_first_frequency, first_mode_slope
 from ..solver.simulator import Simulator
 from ..solver.stability import SimulationDiverged
+from ..validation import cli_int, cli_real
+from .accuracy_report import amplitude_loss_per_period, clamped_beam, oscillation_frequency, sample_tip_z
+from .runner import load_scene_module
+from .stamp import stamp
 
 STEPS_MS = (1, 2, 4, 8, 16)
 CANTILEVER_MS = (0.25, 0.5, 1, 2, 4, 8, 16)
@@ -142,10 +149,8 @@ def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, lo
 def cantilever_row(dt: float, integrator: str, periods: float = CANTILEVER_PERIODS) -> dict:
     """The real-hair cantilever's first mode (module doc) at `dt` [s] with `integrator`, over
     `periods` periods; wall_s [s] is the stepping time (compilation included on a first run)."""
-    from .reports import (amplitude_loss_per_period, beam_frequency, clamped_beam, first_mode_slope,
-                          oscillation_frequency, sample_tip_z)
     material = Material()
-    expected = beam_frequency(CANTILEVER_LENGTH, material.bending_stiffness[0], material.linear_density)
+    expected = cantilever_first_frequency(CANTILEVER_LENGTH, material.bending_stiffness[0], material.linear_density)
     bent = clamped_beam(CANTILEVER_SEGMENTS, length=CANTILEVER_LENGTH,
                         slope=lambda s: 0.01 * CANTILEVER_LENGTH * first_mode_slope(s, CANTILEVER_LENGTH))
     sim = Simulator(clamped_beam(CANTILEVER_SEGMENTS, length=CANTILEVER_LENGTH), material, dt=dt,
@@ -191,12 +196,11 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
     """scene_rows: the scene's speed and accuracy rows (at steps_ms [ms]); cantilever: the
     cantilever rows. Writes implicit.json, and implicit.png (tip error against wall time, both
     integrators, log-log) when there are accuracy rows."""
-    from .runner import load_scene_module
-    from .. import runtime
     module = load_scene_module(script) if scene_rows else None  # the cantilever alone needs no scene
     runtime.init(precision=getattr(module, "PRECISION", "float32"))
-    result = {"scene": str(script), "precision": runtime.precision(), "speed": [], "accuracy": None,
-              "every": every, "seconds": seconds,
+    result = {"report": "implicit", "stamp": None, "scene": str(script), "precision": runtime.precision(),
+              "speed": [], "accuracy": None, "every": every, "seconds": seconds, "frames": frames,
+              "reference_dt": reference_dt, "steps_ms": list(steps_ms), "scene_rows": scene_rows,
               "cantilever": cantilever_rows(log) if cantilever else []}
     if scene_rows:
         scene = module.build()
@@ -205,6 +209,7 @@ def implicit_report(script="scenes/shake_curly.py", *, frames: int = 12, every: 
         dt = shot.dt if shot is not None else 1e-3
         result["speed"] = speed_rows(scene, dt, frames, frame_s, log) if frames else []
         result["accuracy"] = accuracy_rows(subset(scene, every), seconds, reference_dt, frame_s, log, steps_ms)
+    result["stamp"] = stamp()  # when and where it was measured: at the end, as the other reports
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "implicit.json").write_text(json.dumps(result, indent=1))
@@ -262,7 +267,6 @@ def format_implicit(result: dict) -> str:
 
 
 def add_parser(sub) -> None:
-    from ..validation import cli_int, cli_real
     p = sub.add_parser("implicit", help="the implicit step against the explicit one: speed and accuracy "
                                         "against a tiny-step reference on a scene")
     p.add_argument("--scene", default="scenes/shake_curly.py")
@@ -292,7 +296,6 @@ def _steps(text: str) -> tuple:
 
 
 def _main(args) -> int:
-    import sys
     result = implicit_report(args.scene, frames=args.frames, every=args.every, seconds=args.seconds,
                              reference_dt=args.reference_dt, out_dir=args.out,
                              scene_rows=not args.cantilever_only, cantilever=not args.no_cantilever,
