@@ -13,7 +13,8 @@ import taichi_hair as th
 from taichi_hair.app import implicit_report as implicit_module
 from taichi_hair.app.outdir import LOCK_FILE, STATE_FILE, claim_out_dir
 from taichi_hair.app.reports import stability_report
-from taichi_hair.app.runner import MAX_IMAGE_PIXELS, SceneScriptError, Shot, _checkpoint, load_scene_module
+from taichi_hair.app.run_output import checkpoint
+from taichi_hair.app.runner import MAX_IMAGE_PIXELS, SceneScriptError, Shot, load_scene_module
 from taichi_hair.app.settings import sweep_points
 from taichi_hair.app.cli import main as cli_main
 
@@ -98,7 +99,7 @@ def test_a_full_disk_names_the_file(tmp_path):
         def save_state(self, path, extra=None):
             raise OSError(errno.ENOSPC, "No space left on device")
     with pytest.raises(OSError) as err:
-        _checkpoint(tmp_path, FullDisk(), Shot(), 1)
+        checkpoint(tmp_path, FullDisk(), Shot(), 1)
     assert err.value.filename == str(tmp_path / STATE_FILE) and err.value.errno == errno.ENOSPC
 
 

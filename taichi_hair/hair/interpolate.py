@@ -32,7 +32,7 @@ import taichi as ti
 from ..rods.frames import parallel_transport
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..runtime import ensure_init, precision
-from ..validation import is_real
+from ..validation import choice, is_real
 from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
 
@@ -475,8 +475,7 @@ def _check_rotation(rotation):
 def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variation,
                curl_phase_variation, seed, offset_length):
     """Per-strand parameters [D, 5] (see `_dense_nodes`) and frizz keys [D], all seeded."""
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    choice("mode", mode, MODES)
     beta = np.asarray(blend, dtype=np.float64) if mode == "blend" else np.asarray(float(mode == "clump"))
     beta = np.full(n_dense, beta) if beta.ndim == 0 else beta
     if beta.shape != (n_dense,) or not np.all((beta >= 0) & (beta <= 1)):

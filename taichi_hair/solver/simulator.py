@@ -17,7 +17,8 @@ from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_f
                         substeps_for)
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from .collisions import root_keeps_collider
-from ..world.scene import _host_distance, check_common_inputs
+from ..world.colliders import host_distance
+from ..world.scene import check_common_inputs
 from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from ..world.forces import Grab, Wind
 from .interaction import InteractionGrid
@@ -296,7 +297,7 @@ class Simulator:
         skipped = []
         for k, c in enumerate(colliders):
             roots = head_roots if c.attached == "head" else world_roots
-            depth = _host_distance(c, roots)
+            depth = host_distance(c, roots)
             skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
         if skipped:
             kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})

@@ -5,13 +5,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, _scalar
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, host_distance
 from .forces import Grab, Hand, Wind
 from ..rods.groom import Groom
 from .forces import HairInteraction, StrandContact
 from ..rods.materials import Material, per_strand_materials
 from ..rods.state import STRAINS
 from ..rods.twist import TWIST_MODES
+from ..validation import real
 
 STRAIN_CHOICES = (None,) + STRAINS  # None: rotation, or der for a groom with its own rest curvatures
 
@@ -80,7 +81,7 @@ class ColliderUnion:
         self.colliders = tuple(colliders)
 
     def _distances(self, points):
-        return np.stack([_host_distance(c, points) for c in self.colliders])
+        return np.stack([host_distance(c, points) for c in self.colliders])
 
     def sample(self, points):
         points = np.asarray(points, dtype=np.float64)
@@ -90,25 +91,6 @@ class ColliderUnion:
         points = np.asarray(points, dtype=np.float64)
         return np.stack([(self.sample(points + h * e) - self.sample(points - h * e)) / (2 * h)
                          for e in np.eye(3)], axis=1)
-
-
-def _host_distance(c, p):
-    """Signed distance [M] of points p [M, 3] from one collider (the kernels' formulas)."""
-    if isinstance(c, MeshCollider):
-        return c.grid.sample(p)
-    kind, a, b, radius = c.packed()
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    if isinstance(c, Sphere):
-        return np.linalg.norm(p - a, axis=1) - radius
-    if isinstance(c, Ellipsoid):
-        q = p - a
-        k0 = np.linalg.norm(q / b, axis=1)
-        return k0 * (k0 - 1.0) / np.maximum(np.linalg.norm(q / b**2, axis=1), 1e-12)
-    if isinstance(c, Capsule):
-        ab = b - a
-        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-        return np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - radius
-    return (p - a) @ b
 
 
 INTEGRATORS = ("explicit", "implicit")  # symplectic Euler; linearised BDF2 (solver/implicit.py)
@@ -218,7 +200,7 @@ def check_common_inputs(*, groom, twist, motion, motion_name, wind, touch, hair_
                          "strand-strand contact)")
     if not _finite_vector3(gravity):
         raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
-    _scalar("drag", drag, "N s/m per metre")
+    real("drag", drag, "N s/m per metre", low=0.0)
 
 
 def _finite_vector3(value) -> bool:
