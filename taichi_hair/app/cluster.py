@@ -274,7 +274,6 @@ def time_rendering(client, script, shot_frames, *, overrides=None) -> dict:
 def _main(argv=None) -> int:
     """python -m taichi_hair.app.cluster SCENE [--frames 48] [--workers 2] [--rounds 3] [--width W --height H
     --dense D]: `bench_rendering`, JSON on stdout."""
-    import argparse
     import json
     import sys
     from ..validation import cli_int, one_line_parser_class

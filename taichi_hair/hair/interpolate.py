@@ -33,7 +33,7 @@ from ..rods.frames import parallel_transport
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..runtime import ensure_init, precision
 from ..validation import choice, is_real
-from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
+from .scalp import (ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
 
 MODES = ("barycentric", "clump", "blend")
@@ -544,7 +544,6 @@ def bench_interpolation(n_dense=100_000, n_nodes=32, n_guides=1000, repeats=5) -
 
 
 def _main(argv=None):
-    import argparse
     from ..runtime import init
     from ..validation import cli_int, one_line_parser_class
     parser = one_line_parser_class()(description="Benchmark dense hair interpolation.")

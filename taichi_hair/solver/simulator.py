@@ -120,7 +120,7 @@ class Simulator:
         accurate at coarse resolution: a curled rod's tip 4x closer to the continuum at 50
         segments than with "der"), "der" (Discrete Elastic Rods' curvature binormal
         2 tan(phi/2) seen from each edge's material frame and the twist as a difference of
-        angles, the measure before 2026-12-03, kept to compare) or None (default: "rotation",
+        angles, kept to compare) or None (default: "rotation",
         but "der" for a groom that carries its own rest curvatures, which are DER's: sag_free
         makes them, and under twist="kmoch", whose rule was built on DER and gains energy on
         elliptic curls under the rotation measure: that pair is refused). `sim.strain` says
