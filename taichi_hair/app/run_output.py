@@ -15,6 +15,7 @@ from .outdir import STATE_FILE, naming_file
 PROGRESS_FILE = "progress.json"
 GUIDES_DIR = "guides"  # frames simulated by a cluster run and not yet rendered
 
+
 def log_frame(frame, total, t, times, simulated=True, stream=None) -> None:
     """One line on stderr for a finished frame (the progress report of --no-progress): frame
     number, simulated time [s] at its end and the wall time [ms] of its simulation,
@@ -26,10 +27,12 @@ def log_frame(frame, total, t, times, simulated=True, stream=None) -> None:
 
 
 def frame_path(out, frame) -> Path:
+    """out/frames/frame_NNNNN.png: frame `frame` (0-based) of the run in `out`."""
     return Path(out) / "frames" / f"frame_{frame:05d}.png"
 
 
 def guides_path(out, frame) -> Path:
+    """out/guides/frame_NNNNN.npz: a frame's guides, simulated and not yet rendered."""
     return Path(out) / GUIDES_DIR / f"frame_{frame:05d}.npz"
 
 
@@ -89,6 +92,8 @@ def open_usd_writer(path, shot, scene, resume, done):
 
 
 def write_usd_frame(writer, frame, shot, sim, guides, hair, pose):
+    """Frame `frame` into the UsdCurvesWriter: the guides [S, N, 3] m and/or the dense hair (a
+    list of [n, 3] m polylines), as shot.usd asks, with the head pose (R, t)."""
     counts = sim.groom.node_counts
     sets = {}
     if shot.usd in ("guides", "both"):
@@ -152,12 +157,15 @@ def resume_point(out, sim, shot, total=None) -> tuple:
 
 
 def run_summary(script, total, resumed_from, times, video, sim) -> dict:
+    """The run's summary: scene, frames, where it resumed, the video, median ms per frame of each
+    part ({part: [s per frame]} in `times`), simulated seconds and the simulator's stats."""
     per_frame = {k: (1e3 * float(np.median(v)) if v else 0.0) for k, v in times.items()}
     return {"scene": str(script), "frames": total, "resumed_from": resumed_from, "video": str(video),
             "ms_per_frame": per_frame, "simulated_s": sim.time, "stats": sim.stats()}
 
 
 def format_summary(summary: dict) -> str:
+    """The two lines `taichi-hair run` prints for a run_summary (cluster runs add their workers)."""
     ms = summary["ms_per_frame"]
     usd = f" + {summary['usd']}" if summary.get("usd") else ""
     if "workers" in summary:
