@@ -6,8 +6,8 @@ Two tiers: `pytest -q` runs the fast tier (pyproject's addopts deselect `slow`),
 slow` the rest. A test is slow when it carries `@pytest.mark.slow`, or when this hook recognises
 it: it (or a fixture it uses, or a helper of its module it calls, at any depth) launches a
 process (`subprocess`, `sys.executable`: each child starts Python and Taichi and compiles its
-kernels from a cold start), runs a report's sweep or stability matrix, or times a benchmark
-experiment (`SLOW_CALLS`)."""
+kernels from a cold start), runs a report's sweep or stability matrix, or runs a benchmark
+experiment (a cosseratbench experiment, a timed rendering) (`SLOW_CALLS`, `SLOW_IMPORTS`)."""
 
 import ast
 import inspect
@@ -26,6 +26,11 @@ SLOW_CALLS = {
     "run_cli", "kill_run_after",  # tests/helpers.py: `taichi-hair run` in a child process
     "accuracy_report", "stability_report", "run_stability_case",  # report sweeps and matrices
     "bench_rendering", "time_rendering",  # benchmark experiments
+}
+# a name imported from a module that is slow to call, whatever it is called locally
+SLOW_IMPORTS = {
+    ("cosseratbench.experiment", "run"),  # a whole cosseratbench experiment (a benchmark experiment)
+    ("helpers", "run_cli"), ("helpers", "kill_run_after"),
 }
 # these attribute owners make any call through them slow (`subprocess.run`, `sys.executable`)
 SLOW_OWNERS = {"subprocess"}
@@ -65,7 +70,8 @@ def slow_functions(path: Path) -> set:
         slow_calls = set(SLOW_CALLS)  # and their local names (`from helpers import run_cli as run`)
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom):
-                slow_calls |= {alias.asname for alias in node.names if alias.name in SLOW_CALLS and alias.asname}
+                slow_calls |= {alias.asname or alias.name for alias in node.names
+                               if (node.module, alias.name) in SLOW_IMPORTS or (alias.name in SLOW_CALLS and alias.asname)}
         facts = {}
         for node in ast.walk(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):

@@ -186,6 +186,7 @@ def test_clamped_ends_hold_the_curves_tangent_not_the_end_chord(n_elements):
     assert np.isclose(rest[:, 1].max() - rest[0, 1], 1e-4 * rod.length, rtol=0.05)
 
 
+@pytest.mark.slow  # the pile experiment stepped frame by frame (a benchmark experiment, by hand)
 def test_pile_loses_energy_in_every_frame_once_its_clamp_stops():
     """The rope coiled on the floor, damped, its clamp still: the total energy (kinetic, elastic,
     gravity) falls in every frame of the settling second. At a bending-bound factor of 0.5 with

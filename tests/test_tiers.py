@@ -16,6 +16,7 @@ def test_slow_tests_are_recognised_through_helpers(tmp_path):
     module = tmp_path / "test_example.py"
     module.write_text(textwrap.dedent("""
         import subprocess, sys
+        from cosseratbench.experiment import run as experiment
         from helpers import run_cli as run
         from taichi_hair.app import reports
 
@@ -37,13 +38,20 @@ def test_slow_tests_are_recognised_through_helpers(tmp_path):
         def test_scene_run(tmp_path):
             assert run(["scenes/cantilever.py"], cwd=tmp_path).returncode == 0
 
+        def bench(name):
+            return experiment(name, None)
+
+        def test_benchmark_experiment():
+            assert bench("pile")
+
         def test_in_process():
             def run(x):  # a local name that launches nothing
                 return x + 1
             assert run(1) == 2
         """))
     assert slow_functions(module) == {"_launch", "_twice", "test_through_two_helpers", "test_python_child",
-                                      "test_report_sweep", "test_scene_run"}
+                                      "test_report_sweep", "test_scene_run", "bench",
+                                      "test_benchmark_experiment"}
 
 
 def test_the_fast_tier_collects_no_test_that_launches_a_process():
