@@ -199,3 +199,42 @@ def test_module_entry_points_check_their_options(module, words, option, low, hig
             run([*words, f"{option}={text}"])
         lines = capsys.readouterr().err.strip().splitlines()
         assert exc.value.code == 2 and len(lines) == 1 and option in lines[0], (text, lines)
+
+
+# ---- user errors in a run: one line naming the file, exit code 2 -----------------------------
+
+CANTILEVER = str(ROOT / "scenes" / "cantilever.py")  # 24 fps, dt 1 ms
+
+
+def _taichi_hair(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "taichi_hair", *args], capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def _error_lines(stderr):
+    return [line for line in stderr.splitlines() if "error:" in line]
+
+
+@pytest.mark.parametrize("case", ["unwritable out", "build returns an int", "script raises"])
+def test_cli_user_errors_are_one_line_naming_the_file(tmp_path, case):
+    scene, out = CANTILEVER, tmp_path / "out"
+    if case == "unwritable out":
+        (tmp_path / "blocker").write_text("a file, not a folder")
+        out = tmp_path / "blocker" / "out"
+        expected = f"{out}: cannot create the output folder (--out)"
+    elif case == "build returns an int":
+        scene = tmp_path / "scene.py"
+        scene.write_text("def build():\n    return 42\n")
+        expected = f"scene script {scene}: build() must return a taichi_hair Scene, got int"
+    else:
+        scene = tmp_path / "scene.py"
+        scene.write_text("import taichi_hair as th\ndef build():\n    return th.Groom.straight(length=-1)\n"
+                         "raise KeyError('typo')\n")
+        expected = f"scene script {scene} failed to load: KeyError"
+    done = _taichi_hair("run", str(scene), "--out", str(out), "--no-progress", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
+    lines = _error_lines(done.stderr)
+    assert len(lines) == 1 and expected in lines[0], done.stderr[-2000:]
+    debug = _taichi_hair("run", str(scene), "--out", str(out), "--no-progress", "--debug", cwd=tmp_path)
+    assert debug.returncode != 0 and "Traceback" in debug.stderr

@@ -10,6 +10,7 @@ import pytest
 
 import taichi_hair as th
 from helpers import rotation_matrix
+from taichi_hair.solver.step.plan import STALL_BELOW
 
 RADII = np.array([0.08, 0.1, 0.115])
 
@@ -262,3 +263,55 @@ def test_strand_on_an_inclined_plane_slides_at_coulombs_rate_or_holds(friction):
     else:
         assert np.abs(travelled).max() < 1e-6
     assert np.abs((sim.positions()[0] - nodes) @ normal).max() < 1e-6  # on the plane, at the margin
+
+
+# ---- a root on or inside a collider's surface ------------------------------------------------
+
+@pytest.mark.parametrize("head", [th.Head.sphere(radius=0.1), th.Head.ellipsoid(radii=(0.1, 0.1, 0.1))],
+                         ids=["sphere", "ellipsoid"])
+@pytest.mark.parametrize("root", ["clamped", "pinned"])
+def test_root_on_the_surface_keeps_the_head_collider(head, root):
+    groom = th.Groom.straight(roots=[[0, 0, 0.1]], directions=[[1, 0, 0]], length=0.3, n_nodes=31)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no collider is skipped, so nothing to warn about
+        sim = th.Simulator.from_scene(th.Scene(groom=groom, head=head), dt=1e-3, root=root)
+    sim.run(0.5, progress=False)
+    free = sim.positions()[0, 2 if root == "clamped" else 1:]
+    depth = np.linalg.norm(free, axis=1) - 0.1
+    # a root on the surface that dropped the head as a collider lets 11 (clamped) / 13 (pinned)
+    # nodes sink 1.5 / 3.5 cm into it in 1 s
+    assert np.count_nonzero(depth < 0) == 0, f"{np.count_nonzero(depth < 0)} nodes inside, deepest {depth.min():.3g} m"
+    # and out to the margin, less what the length-only iterations that finish a projection in
+    # contact may move a node: STALL_BELOW x its edge (1e-5 m here; measured 4e-8 / 2.1e-7 m)
+    assert depth.min() > 0.002 - STALL_BELOW * 0.01
+    assert sim.skipped_colliders == []
+
+
+def test_root_deep_inside_a_collider_skips_it_with_a_warning():
+    """A groom rooted 5 mm inside a neck capsule (margin 2 mm) does not collide with the capsule,
+    and says so; a root 1 mm inside (within the margin) keeps it."""
+    groom = th.Groom.straight(roots=[[0, 0, 0.045], [0.02, 0, 0.045]], directions=[[1, 0, 0], [1, 0, 0]],
+                              length=0.1, n_nodes=11)
+    neck = th.Capsule(p0=(0, 0, 0), p1=(0, 0, -0.2), radius=0.05, margin=0.002)
+    with pytest.warns(RuntimeWarning, match=r"inside Capsule \(colliders\[0\]\) by more than its margin"):
+        sim = th.Simulator(groom, th.Material(), colliders=(neck,), gravity=(0, 0, 0))
+    assert sim.skipped_colliders == [(0, 0)]
+
+
+# ---- touch tools compile cleanly -------------------------------------------------------------
+
+def test_touch_tools_compile_without_division_warnings():
+    script = textwrap.dedent("""
+        import taichi_hair as th
+        th.init(arch="cpu", precision="float64", offline_cache=False)  # compile for real
+        groom = th.Groom.straight(roots=[[0, 0, 0]], directions=[[0, 0, -1]], length=0.1, n_nodes=11)
+        tools = (th.Grab(path=lambda t: (0.0, 0.02, -0.05)), th.Hand(path=lambda t: (0.0, -0.05, -0.05)))
+        sim = th.Simulator(groom, th.Material(), dt=2e-4, touch=tools)
+        sim.step(2)
+        print(sim.time)
+        """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert float(done.stdout.split()[-1]) == pytest.approx(4e-4)
+    # a hand sent through the ellipsoid branch with zero radii compiles 12 "Potential division by 0" warnings
+    assert done.stderr.count("division by 0") == 0, done.stderr[-3000:]

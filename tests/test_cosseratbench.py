@@ -186,12 +186,13 @@ def test_clamped_ends_hold_the_curves_tangent_not_the_end_chord(n_elements):
     assert np.isclose(rest[:, 1].max() - rest[0, 1], 1e-4 * rod.length, rtol=0.05)
 
 
+@pytest.mark.slow  # the pile experiment stepped frame by frame (a benchmark experiment, by hand)
 def test_pile_loses_energy_in_every_frame_once_its_clamp_stops():
     """The rope coiled on the floor, damped, its clamp still: the total energy (kinetic, elastic,
-    gravity) falls in every frame of the settling second. At the bending bound's old factor
-    with contact, 0.5 (h omega = 1.97 for the stiffest mode), contact pushes pumped it: a rise
-    of 0.33 of itself in one frame, and the rope ended at 0.49 of the energy it had when the
-    clamp stopped (measured); at 0.4, the default with strand contact, it falls in every frame."""
+    gravity) falls in every frame of the settling second. At a bending-bound factor of 0.5 with
+    contact (h omega = 1.97 for the stiffest mode), contact pushes pump it: a rise of 0.33 of
+    itself in one frame, and the rope ends at 0.49 of the energy it had when the clamp stopped
+    (measured); at 0.4, the default with strand contact, it falls in every frame."""
     from cosseratbench.experiments.pile import feed_time
 
     experiment = registry.load_experiment("pile")

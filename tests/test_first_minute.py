@@ -3,6 +3,7 @@ installation, `--help` and `doctor` print no Taichi banner, scenes import only t
 `sim.run(t)` ends at t, and a fresh run does not claim to be resumed."""
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
-from taichi_hair.app import cli, runner
+from taichi_hair.app import cli, run_command, run_output, runner
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,14 +45,14 @@ def test_every_option_shows_its_default_in_help():
 
 def test_out_defaults_to_out_slash_scene_name():
     args = cli.build_parser().parse_args(["run", "scenes/shake_curly.py"])
-    assert args.out is None and runner.default_out(args.scene) == Path("out") / "shake_curly"
+    assert args.out is None and run_command.default_out(args.scene) == Path("out") / "shake_curly"
 
 
 def test_a_fresh_run_is_not_called_resumed():
     summary = {"scene": "s.py", "frames": 2, "resumed_from": 0, "video": "v.mp4", "simulated_s": 0.1,
                "ms_per_frame": {"simulation": 1.0, "interpolation": 1.0, "rendering": 1.0}}
-    assert "resumed" not in runner.format_summary(summary)
-    assert "(resumed from 5)" in runner.format_summary({**summary, "resumed_from": 5})
+    assert "resumed" not in run_output.format_summary(summary)
+    assert "(resumed from 5)" in run_output.format_summary({**summary, "resumed_from": 5})
 
 
 def _cli(*args):
@@ -102,9 +103,9 @@ def test_run_ends_at_exactly_the_time_asked():
 
 
 def test_bench_is_quick_by_default_and_whole_with_full():
-    """`taichi-hair bench` with no arguments ran the whole table for 12 minutes (10000 guides,
-    the implicit step's cold compile); now the quick table, --full the whole one, and an option
-    given on the line wins over either."""
+    """`taichi-hair bench` with no arguments runs the quick table (the whole one takes 12 minutes:
+    10000 guides, the implicit step's cold compile), --full the whole one, and an option given
+    on the line wins over either."""
     from taichi_hair.app import bench
     parser = cli.build_parser()
 
@@ -118,3 +119,25 @@ def test_bench_is_quick_by_default_and_whole_with_full():
     assert "10000" in full.strands.split(",") and full.integrator == "both"
     assert quick.dense < full.dense and quick.head_guides < full.head_guides
     assert resolved("--full", "--strands", "7").strands == [7]
+
+
+# ---- stdout belongs to the caller: --json prints JSON only -----------------------------------
+
+def test_bench_json_stdout_is_one_json_document():
+    # both integrators compile from a cold cache: over 300 s on CI's 2 cores
+    done = subprocess.run([sys.executable, "-m", "taichi_hair", "bench", "--json", "--strands", "1", "--repeats", "1",
+                           "--stage-steps", "1", "--head-guides", "0", "--dense", "0"],
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    results = json.loads(done.stdout)  # Taichi's banner ("[Taichi] version ...") is kept off stdout
+    assert results[0]["precision"] == "float32"
+    assert "[Taichi]" in done.stderr
+
+
+def test_library_keeps_stdout_for_the_caller():
+    script = ("import taichi_hair as th; th.init(); import taichi.lang.shell as shell; "
+              "print('data', shell.pybuf_enabled)")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    # the banner went to stderr without Taichi mistaking a replaced stdout for a notebook's
+    assert done.stdout == "data False\n" and "[Taichi] version" in done.stderr

@@ -4,12 +4,15 @@ The reference bytes are packed here with `struct` field by field from the publis
 with the module's own header struct, so a layout mistake in the module cannot hide."""
 
 import struct
+import time
+import tracemalloc
 
 import numpy as np
 import pytest
 
+import taichi_hair as th
 from taichi_hair.hair.hairfile import (HairFile, HairFileError, read_hair, read_obj_polylines,
-                                  write_hair, write_obj_polylines)
+                                       write_hair, write_obj_polylines)
 
 BITS = {"segments": 1, "points": 2, "thickness": 4, "transparency": 8, "colour": 16}
 
@@ -164,3 +167,68 @@ def test_malformed_obj_raises(tmp_path, text, phrase):
 def test_missing_file_raises_hair_file_error(tmp_path):
     with pytest.raises(HairFileError, match="cannot read"):
         read_hair(tmp_path / "missing.hair")
+
+
+# ---- hostile files: header counts, devices, non-finite defaults, write errors ----------------
+
+def _tiny_hair(path, n_strands, n_points=1, flags=2, default_segments=0, **defaults):
+    """A 128-byte header (fields packed one by one) and the points it promises, nothing more."""
+    thickness = defaults.get("thickness", 1.0)
+    header = (b"HAIR" + struct.pack("<IIII", n_strands, n_points, flags, default_segments)
+              + struct.pack("<ff3f", thickness, 0.0, 1.0, 1.0, 1.0) + b"\0" * 88)
+    body = b"".join(struct.pack("<3f", *p) for p in defaults.get("points", [(0, 0, 0)] * n_points))
+    path.write_bytes(header + body)
+    return path
+
+
+@pytest.mark.parametrize("n_strands, flags, segments", [
+    (2**24, 2, 0),            # no segments array: the strand count alone sized an array
+    (2**31, 2, 0),            # (allocating what the header says: 2^28 takes 4.2 s and 1.7 GB; 2^31: MemoryError)
+    (2**32 - 1, 2, 2**32 - 1),
+    (2**32 - 1, 3, 0),        # a segments array the file cannot hold
+])
+def test_absurd_header_counts_fail_fast_without_allocating(tmp_path, n_strands, flags, segments):
+    path = _tiny_hair(tmp_path / "tiny.hair", n_strands, flags=flags, default_segments=segments)
+    tracemalloc.start()
+    start = time.perf_counter()
+    with pytest.raises(HairFileError) as info:
+        th.read_hair(path)
+    seconds = time.perf_counter() - start
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert str(path) in str(info.value)
+    assert peak < 1e6, f"read_hair allocated {peak / 1e6:.0f} MB for a {path.stat().st_size}-byte file"
+    assert seconds < 0.5
+
+
+@pytest.mark.parametrize("reader", [th.read_hair, th.read_obj_polylines])
+def test_readers_refuse_devices(reader):
+    with pytest.raises(HairFileError, match="/dev/zero: not a regular file"):
+        reader("/dev/zero")
+
+
+def test_hair_file_with_nan_default_thickness_is_rejected(tmp_path):
+    path = _tiny_hair(tmp_path / "nan.hair", 1, n_points=2, default_segments=1, thickness=float("nan"))
+    with pytest.raises(HairFileError, match="default thickness, transparency and colour must be finite"):
+        th.read_hair(path)
+    hair = th.HairFile.from_strands([np.zeros((2, 3))], default_thickness=float("nan"))
+    with pytest.raises(HairFileError, match="must be finite"):
+        th.write_hair(tmp_path / "out.hair", hair)
+
+
+def test_absurd_coordinates_are_rejected(tmp_path):
+    obj = tmp_path / "far.obj"
+    obj.write_text("v 0 0 0\nv 1e300 0 0\nl 1 2\n")
+    with pytest.raises(HairFileError, match=r"line 2: vertex coordinates must lie within \+-1e\+06"):
+        th.read_obj_polylines(obj)
+    path = _tiny_hair(tmp_path / "far.hair", 1, n_points=2, default_segments=1,
+                      points=[(0, 0, 0), (3e38, 0, 0)])
+    with pytest.raises(HairFileError, match="point 1 has coordinates"):
+        th.read_hair(path)
+
+
+@pytest.mark.parametrize("write", [th.write_hair, th.write_obj_polylines])
+def test_writers_wrap_os_errors_naming_the_path(tmp_path, write):
+    path = tmp_path / "no such directory" / "out.file"
+    with pytest.raises(HairFileError, match="no such directory/out.file: cannot write the file"):
+        write(path, [np.zeros((2, 3)), np.ones((3, 3))])

@@ -48,8 +48,8 @@ def test_stiffness_is_the_force_jacobian_at_straight_rest(ellipticity):
 def test_stiffness_is_the_force_jacobian_on_curled_elliptic_rest_shapes(root, strain):
     """The angles condensed out of the Gauss-Newton Hessian over positions and angles: at any
     rest shape it is the exact Jacobian of the forces at twist equilibrium (curls, elliptic
-    sections, the twist-bending coupling included; the earlier K, without the angles, was
-    about 20 % off on tight elliptic curls). Both strain measures; the rotation measure's forces
+    sections, the twist-bending coupling included; a K without the angles is about 20 % off
+    on tight elliptic curls). Both strain measures; the rotation measure's forces
     carry more rounding, so its differences take h = 1e-6 m (at 1e-7 their own asymmetry, which
     the exact Jacobian does not have, reaches 3.5e-7 on the tightest curl; at 1e-6 it is the
     differences' truncation, 9e-8)."""

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 import taichi_hair as th
+from taichi_hair import validation
+from taichi_hair.app.runner import Shot
 
 
 @pytest.mark.parametrize("kwargs, name", [
@@ -143,3 +145,83 @@ def test_init_refuses_a_second_precision():
         th.init(arch="cpu", precision="float32")
     with pytest.raises(ValueError, match="precision"):
         th.init(precision="float16")
+
+
+@pytest.mark.parametrize("check, message", [
+    (lambda: validation.real("radius", -1.0, "m", low=0.0, low_open=True), "radius must be a finite number > 0 m, got -1.0"),
+    (lambda: validation.real("gain", 2.0, low=0.0, high=1.0), "gain must be a finite number >= 0 and <= 1, got 2.0"),
+    (lambda: validation.real("dt", float("nan"), "s", low=0.0, low_open=True), "dt must be a finite number > 0 s, got nan"),
+    (lambda: validation.real("dt", True, "s"), "dt must be a finite number s, got True"),
+    (lambda: validation.real("dt", "1e-3", "s"), "dt must be a finite number s, got '1e-3'"),
+    (lambda: validation.integer("n_nodes", 2, low=3), "n_nodes must be an integer >= 3, got 2"),
+    (lambda: validation.integer("n_nodes", 3.0, low=3), "n_nodes must be an integer >= 3, got 3.0"),
+    (lambda: validation.vector3("centre", [0.0, 1.0], "m"), "centre must be a finite 3-vector [m], got [0.0, 1.0]"),
+    (lambda: validation.vector3("radii", (1.0, 0.0, 1.0), positive=True), "radii must be a finite 3-vector with every entry > 0"),
+    (lambda: validation.vector3("axis", (0, 0, 0), normalise=True), "axis must be a finite non-zero 3-vector (it is normalised)"),
+    (lambda: validation.vector3("axis", "up"), "axis must be a finite 3-vector, got 'up'"),
+    (lambda: validation.choice("usd", "all", ("guides", "dense")), "usd must be one of ('guides', 'dense'), got 'all'"),
+])
+def test_validation_vocabulary_names_the_parameter_and_range(check, message):
+    with pytest.raises(ValueError) as err:
+        check()
+    assert str(err.value).startswith(message)
+
+
+def test_validation_vocabulary_accepts_and_converts():
+    assert validation.real("dt", np.float32(0.5), "s", low=0.0, low_open=True) == 0.5
+    assert validation.real("x", 0.0, low=0.0) == 0.0 and validation.real("x", 1.0, high=1.0) == 1.0
+    assert type(validation.integer("n", np.int64(4), low=3)) is int
+    v = validation.vector3("axis", (0.0, 3.0, 4.0), normalise=True)
+    assert v.dtype == np.float64 and np.allclose(v, [0.0, 0.6, 0.8])
+    assert validation.choice("mode", "blend", ("blend", "clump")) == "blend"
+    with pytest.raises(ValueError):
+        validation.real("x", 1.0, high=1.0, high_open=True)
+
+
+# ---- API inputs: folds, numpy scalars, NaN forces --------------------------------------------
+
+def _hair(n_nodes=21):
+    return th.Groom.straight(roots=[[0, 0, 0]], directions=[[1, 0, 0]], length=0.2, n_nodes=n_nodes)
+
+
+def test_set_positions_rejects_coincident_nodes_and_folds():
+    sim = th.Simulator(_hair(6), th.Material(), gravity=(0, 0, 0))
+    x = sim.positions()
+    coincident = x.copy()
+    coincident[0, 3] = coincident[0, 2]
+    with pytest.raises(ValueError, match=r"positions: strand 0 segment 2 \(nodes 2-3\) has length 0 m"):
+        sim.set_positions(coincident)
+    folded = x.copy()
+    folded[0, 4] = folded[0, 2]  # node 3 turns back by 180 degrees
+    with pytest.raises(ValueError, match=r"positions: strand 0 turns by 180.0 degrees at node 3; turning "
+                                         r"angles must be <= 170 degrees"):
+        sim.set_positions(folded)
+    np.testing.assert_array_equal(sim.positions(), x)  # refused, not half-applied
+    assert np.isfinite(sim.elastic_energy())  # an accepted fold makes the energy NaN
+
+
+def test_numpy_scalars_are_accepted_wherever_numbers_are():
+    f32, i64 = np.float32, np.int64
+    material = th.Material(youngs_modulus=f32(3e9), radius=f32(4e-5), ellipticity=np.float64(1.2))
+    assert type(material.radius) is float and material.radius == pytest.approx(4e-5, rel=1e-6)
+    groom = th.Groom.straight(length=f32(0.2), n_nodes=i64(11))
+    head = th.Head.sphere(radius=f32(0.05), centre=(0, 0, 0.1), margin=f32(0.002))
+    sim = th.Simulator(groom, material, dt=f32(1e-3), drag=f32(1e-4), projection_iterations=i64(50),
+                       max_substeps=i64(100), colliders=head.colliders)
+    sim.step(i64(2))
+    sim.run(f32(0.002), progress=False)
+    assert sim.steps_taken == 4 and sim.dt == pytest.approx(1e-3)
+    assert Shot(dt=f32(1e-3), fps=24).steps_per_frame == 42
+    for bad in (True, "1e-3", None):  # still refused: not real numbers
+        with pytest.raises(ValueError, match="dt must be > 0 and < 1 s"):
+            th.Simulator(groom, material, dt=bad)
+
+
+def test_user_forces_with_nan_say_what_is_wrong():
+    sim = th.Simulator(_hair(11), th.Material())
+    force = np.zeros((1, 11, 3))
+    force[0, 7, 2] = np.nan
+    with pytest.raises(ValueError, match=r"user forces must be finite; strand 0 node 7 is \[ 0.  0. nan\] N"):
+        sim.set_user_forces(force)
+    with pytest.raises(ValueError, match=r"must have shape \[1, 11, 3\] \(strands, nodes, xyz\) N, got \[11, 3\]"):
+        sim.set_user_forces(force[0])

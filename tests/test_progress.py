@@ -14,9 +14,9 @@ def _states(text):
 
 
 def test_no_estimate_until_a_chunk_after_the_compile_is_timed():
-    """The runner opened the bar with update(0): the old bar started its clock there, so the
-    first frame's compile counted as work time and the first estimate was 2690 s for a run of
-    minutes. Now the first non-zero chunk is the compile; the estimate starts after it."""
+    """The runner opens the bar with update(0): a bar that started its clock there would count
+    the first frame's compile as work time (a first estimate of 2690 s for a run of minutes).
+    The first non-zero chunk is the compile; the estimate starts after it."""
     out = io.StringIO()
     with ProgressBar(10.0, "work", stream=out, terminal=True) as bar:
         bar.update(0)  # what a fresh run's runner does

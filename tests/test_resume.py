@@ -1,11 +1,14 @@
 """A simulator ends in the same state, bit for bit, whatever the grouping of its steps into
 `step` calls and launches, and a checkpoint-resumed simulator continues exactly as the
-uninterrupted one (issue 46, item 1). Before: on scenes/wind_straight.py `sim.step(21);
-sim.step(21)` ended 2.4e-9 m from `sim.step(42)` (the wind's time was a sum carried from launch to
-launch) and a resumed simulator 2.8e-15 m from the uninterrupted one (the frames the last step
-left were recomputed in another kernel, the implicit history reseeded)."""
+uninterrupted one. What breaks it: on scenes/wind_straight.py a wind time summed from launch to
+launch put `sim.step(21); sim.step(21)` 2.4e-9 m from `sim.step(42)`, and a resume that recomputes
+the last step's frames in another kernel and reseeds the implicit history ends 2.8e-15 m from the
+uninterrupted run."""
 
+import json
 import shutil
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -116,3 +119,72 @@ def test_killed_wind_straight_resumes_byte_for_byte(uninterrupted, kill_after, t
         name = f"frames/frame_{k:05d}.png"
         assert (out / name).read_bytes() == (uninterrupted / name).read_bytes(), name
     shutil.rmtree(out)
+
+
+# ---- the run's checkpoint: one atomic record, frames on exact times --------------------------
+
+CANTILEVER = str(ROOT / "scenes" / "cantilever.py")  # 24 fps, dt 1 ms
+
+
+def _run(args, timeout=300, **kwargs):
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout, **kwargs)
+
+
+def _taichi_hair(*args, cwd):
+    return _run([sys.executable, "-m", "taichi_hair", *args], cwd=cwd)
+
+
+def _render(out, frames, *extra):
+    return _taichi_hair("run", CANTILEVER, "--out", str(out), "--frames", str(frames), "--width", "32",
+                        "--height", "24", "--no-progress", *extra, cwd=out.parent)
+
+
+@pytest.fixture(scope="module")
+def three_frames(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "out"
+    done = _render(out, 3)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return out
+
+
+def _copy(src, tmp_path):
+    dst = tmp_path / "out"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_resume_trusts_the_state_file_not_a_stale_progress_file(three_frames, tmp_path):
+    """A kill between the state file and progress.json left progress.json one frame behind: the
+    resume continues from the state file's own frame count, redoing nothing, and the frames
+    land on k / fps (trusting progress.json resumes from 2 and ends at 0.21 s instead of 4/24 s)."""
+    out = _copy(three_frames, tmp_path)
+    (out / "progress.json").write_text(json.dumps({"frames_done": 2, "time": 2 / 24}))
+    done = _render(out, 4, "--resume")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "4 frames (resumed from 3)" in done.stdout
+    with np.load(out / "state.npz") as state:
+        assert abs(float(state["time"]) - 4 / 24) < 1e-12
+        assert int(state["extra_frames_done"]) == 4
+
+
+def test_resume_refuses_an_inconsistent_or_damaged_checkpoint(three_frames, tmp_path):
+    out = _copy(three_frames, tmp_path)
+    with np.load(out / "state.npz") as state:
+        arrays = {k: state[k] for k in state.files}
+    np.savez(out / "state.npz", **{**arrays, "extra_frames_done": np.array(2)})  # time says 3 frames
+    done = _render(out, 4, "--resume")
+    assert done.returncode == 2
+    assert f"{out / 'state.npz'}: inconsistent checkpoint: 2 frames done" in done.stderr
+    (out / "state.npz").write_bytes((out / "state.npz").read_bytes()[:300])  # truncated
+    done = _render(out, 4, "--resume")
+    assert done.returncode == 2 and f"{out / 'state.npz'}: not a readable checkpoint" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_shot_fits_dt_to_the_frame_and_refuses_dt_past_a_frame():
+    shot = Shot(fps=24, dt=1e-3)
+    assert shot.steps_per_frame == 42 and shot.frame_dt <= shot.dt
+    assert abs(shot.steps_per_frame * shot.frame_dt - 1 / 24) < 1e-15  # 42 steps of a whole 1 ms: 42 ms per 41.67 ms frame
+    assert Shot(fps=25, dt=1e-3).steps_per_frame == 40 and Shot(fps=24, dt=1 / 24).steps_per_frame == 1
+    with pytest.raises(ValueError, match=r"dt must be at most one frame, 1/fps = 0.04167 s at fps = 24, got 0.5"):
+        Shot(fps=24, dt=0.5)

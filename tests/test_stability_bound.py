@@ -4,6 +4,9 @@ straight chain's estimate, measured from central differences of the elastic forc
 inextensible chain's tangent space (tests/helpers.stiffest_mode_ratios). At factor 0.5 the
 step then runs that mode at h omega <= 2 sqrt(measured / rule) <= 2, symplectic Euler's limit."""
 
+import time
+import warnings
+
 import numpy as np
 import pytest
 
@@ -108,3 +111,55 @@ def test_measured_bound_of_a_sharp_turn_holds_as_a_straight_strands_does():
     assert sharp.stable_dt > 2.5 * rule.stable_dt
     assert _kicked(110, 0.8) < 1.001 and _kicked(0, 0.8) < 1.001
     assert _kicked(110, 1.25) > 2.0  # past the measured mode it grows: the measurement is not loose
+
+
+# ---- automatic substepping has a ceiling -----------------------------------------------------
+
+def _hair(n_nodes=21):
+    return th.Groom.straight(roots=[[0, 0, 0]], directions=[[1, 0, 0]], length=0.2, n_nodes=n_nodes)
+
+
+def test_substeps_past_max_substeps_are_refused_naming_the_cause():
+    start = time.perf_counter()
+    # without the ceiling this is 153,033,600 substeps per step after one warning (an apparent hang)
+    with pytest.raises(ValueError, match=r"153033600 substeps .* more than max_substeps = 1000; the "
+                                         r"stability bound is set by drag = 1e\+06 N s/m per metre"):
+        th.Simulator(_hair(), th.Material(), drag=1e6)
+    assert time.perf_counter() - start < 5.0
+    grab = th.Grab(path=lambda t: (0.1, 0.0, 0.0), stiffness=1e6)
+    with pytest.raises(ValueError, match=r"set by touch\[0\]\.stiffness = 1e\+06 N/m"):
+        th.Simulator(_hair(), th.Material(), touch=(grab,))
+    with pytest.raises(ValueError, match=r"4386 substeps .* set by the material's bending stiffness"):
+        th.Simulator(_hair(101), th.Material(youngs_modulus=1e13, radius=2e-4))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the substepping notice
+        sim = th.Simulator(_hair(), th.Material(), drag=100.0, max_substeps=20000)
+    assert 1000 < sim.substeps <= 20000 and sim.dt / sim.substeps <= sim.stable_dt
+
+
+@pytest.mark.parametrize("value", [0, -3, 2.5, True, "10"])
+def test_max_substeps_must_be_a_positive_integer(value):
+    with pytest.raises(ValueError, match=f"max_substeps must be an integer >= 1, got {value!r}"):
+        th.Simulator(_hair(), th.Material(), max_substeps=value)
+
+
+# ---- float32 energy --------------------------------------------------------------------------
+
+def test_float32_fine_hair_keeps_its_energy(tmp_path):
+    """Undamped float32 strands with tiny substeps can gain energy from rounding read back as
+    velocity ((x - x_prev) / h) and from a loose float32 projection tolerance (1 mm segments, 61
+    substeps: +21 % of the energy in play in 0.2 s; a tight elliptic curl under Kmoch's rule, 196
+    substeps: +6.6 %), and from the rounding of float32 positions themselves (E 1e10 at 1 mm
+    segments, 222 substeps of a 2 ms step: +2.0 %). Run in float32 (a worker process), judged by
+    the stability report's own rule (ENERGY_RISE_FAIL)."""
+    from taichi_hair.app import stability_cases, stability_report
+    cases = [stability_cases.StabilityCase(name="1 mm segments", segment=0.001),
+             stability_cases.StabilityCase(name="tight elliptic curl", curl_radius=0.005, segment=0.0025,
+                                   ellipticity=4.0, twist="kmoch"),
+             stability_cases.StabilityCase(name="stiff, 1 mm segments, 2 ms", youngs_modulus=1e10, segment=0.001,
+                                   dt=2e-3)]
+    result = stability_report.stability_report(False, tmp_path, cases=cases, duration=0.2)
+    for row in result["cases"]:
+        assert row["precision"] == "float32"
+        assert row["status"] == "substepped", row["outcome"]
+        assert row["energy_max_rise"] < stability_report.ENERGY_RISE_FAIL, row

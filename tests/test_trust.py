@@ -1,6 +1,6 @@
-"""Regression tests for the defects a hostile pass found (issue 46, items 2-14; item 1 is
-tests/test_resume.py and the command-line ranges are tests/test_cli_fuzz.py). Each failed on the
-code before its fix."""
+"""What a hostile user can do to a run and its inputs: failing disks, damaged checkpoints,
+scripts that raise or exit, numbers at the edge of their range (a resumed run is
+tests/test_resume.py, the command-line ranges tests/test_cli_fuzz.py)."""
 
 import errno
 import json
@@ -13,12 +13,13 @@ import taichi_hair as th
 from taichi_hair.app import implicit_report as implicit_module
 from taichi_hair.app.outdir import LOCK_FILE, STATE_FILE, claim_out_dir
 from taichi_hair.app.stability_report import stability_report
-from taichi_hair.app.runner import MAX_IMAGE_PIXELS, SceneScriptError, Shot, _checkpoint, load_scene_module
+from taichi_hair.app.run_output import checkpoint
+from taichi_hair.app.runner import MAX_IMAGE_PIXELS, SceneScriptError, Shot, load_scene_module
 from taichi_hair.app.settings import sweep_points
 from taichi_hair.app.cli import main as cli_main
 
 
-# ---- 2: image size ------------------------------------------------------------------------------
+# ---- image size ------------------------------------------------------------------------------
 @pytest.mark.parametrize("size", [(100_000, 100_000), (16_384, 16_384), (8192, 8192, 2)])
 def test_image_size_is_refused_past_the_limit(size):
     """Before: Shot(width=100000, height=100000) was taken and the run grew to 21 GB."""
@@ -29,7 +30,7 @@ def test_image_size_is_refused_past_the_limit(size):
     Shot(width=8192, height=8192)  # at the limit: accepted
 
 
-# ---- 3: sweep values ------------------------------------------------------------------------------
+# ---- sweep values ------------------------------------------------------------------------------
 @pytest.mark.parametrize("values", [[1e-4, 1e-4], [1e-4, 0.0001], [1.0000001, 1.0000002]])
 def test_sweep_refuses_values_that_share_a_folder(values):
     """Before: --set drag=1e-4,1e-4 ran twice into runs/drag=0.0001, the second's summary
@@ -39,7 +40,7 @@ def test_sweep_refuses_values_that_share_a_folder(values):
     assert len(sweep_points([("drag", [1e-4, 2e-4])])) == 2
 
 
-# ---- 4: a report that simulates nothing ---------------------------------------------------------------
+# ---- a report that simulates nothing ---------------------------------------------------------------
 @pytest.mark.parametrize("duration", [-1.0, 0.0, float("nan"), float("inf")])
 def test_stability_report_refuses_a_duration_that_simulates_nothing(duration, tmp_path):
     """Before: report stability --duration -1 (or nan) said every case was stable."""
@@ -47,7 +48,7 @@ def test_stability_report_refuses_a_duration_that_simulates_nothing(duration, tm
         stability_report(True, out_dir=tmp_path, cases=[], duration=duration)
 
 
-# ---- 5 and 6: output folders --------------------------------------------------------------------------
+# ---- output folders --------------------------------------------------------------------------
 def _finished_run(out, frames):
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / STATE_FILE, extra_frames_done=frames, extra_fps=24, extra_frame_dt=1 / 24 / 42, time=frames / 24)
@@ -76,7 +77,7 @@ def test_a_second_run_on_one_output_folder_is_refused(tmp_path):
     again.close()
 
 
-# ---- 7: the working directory -------------------------------------------------------------------------
+# ---- the working directory -------------------------------------------------------------------------
 def test_implicit_report_without_scene_rows_does_not_read_the_scene(tmp_path, monkeypatch):
     """Before: report implicit --cantilever-only from outside the repository failed on the
     default scene script (scenes/shake_curly.py), which it does not use."""
@@ -89,7 +90,7 @@ def test_implicit_report_without_scene_rows_does_not_read_the_scene(tmp_path, mo
     assert json.loads((tmp_path / "r" / "implicit.json").read_text())["speed"] == []
 
 
-# ---- 8: a full disk names its file --------------------------------------------------------------------
+# ---- a full disk names its file --------------------------------------------------------------------
 def test_a_full_disk_names_the_file(tmp_path):
     """Before: "[Errno 28] No space left on device", no file named."""
     class FullDisk:
@@ -98,11 +99,11 @@ def test_a_full_disk_names_the_file(tmp_path):
         def save_state(self, path, extra=None):
             raise OSError(errno.ENOSPC, "No space left on device")
     with pytest.raises(OSError) as err:
-        _checkpoint(tmp_path, FullDisk(), Shot(), 1)
+        checkpoint(tmp_path, FullDisk(), Shot(), 1)
     assert err.value.filename == str(tmp_path / STATE_FILE) and err.value.errno == errno.ENOSPC
 
 
-# ---- 10: a scene script that exits --------------------------------------------------------------------
+# ---- a scene script that exits --------------------------------------------------------------------
 @pytest.mark.parametrize("where", ["module", "build"])
 def test_a_scene_script_calling_sys_exit_is_a_one_line_error(where, tmp_path, capsys):
     """Before: a script calling sys.exit(3) ended `run` with rc 3 and no message."""
@@ -118,7 +119,7 @@ def test_a_scene_script_calling_sys_exit_is_a_one_line_error(where, tmp_path, ca
     assert len(lines) == 1 and "sys.exit(3)" in lines[0] and str(script) in lines[0]
 
 
-# ---- 13: set_positions refuses a stretched strand -------------------------------------------------------
+# ---- set_positions refuses a stretched strand -------------------------------------------------------
 def test_set_positions_refuses_a_strand_stretched_tenfold():
     """Before: accepted; the next step raised SimulationDiverged."""
     sim = th.Simulator(th.Groom.straight(length=0.1, n_nodes=8), th.Material())
@@ -130,7 +131,7 @@ def test_set_positions_refuses_a_strand_stretched_tenfold():
     sim.set_positions(x[:, :] + np.array([0.0, 0.0, 1e-3]) * (np.arange(8) > 0)[None, :, None])  # a shift: taken
 
 
-# ---- 14: the groom check is one pass over every strand ---------------------------------------------------
+# ---- the groom check is one pass over every strand ---------------------------------------------------
 def test_groom_check_names_the_first_bad_strand_among_many():
     """The vectorised check (a loop over strands cost 35 us each) still names the first bad
     strand and its fault, as the loop did."""
@@ -155,7 +156,7 @@ def test_groom_check_names_the_first_bad_strand_among_many():
         th.Groom(x, short)
 
 
-# ---- 11, 12: USD ----------------------------------------------------------------------------------------
+# ---- USD ----------------------------------------------------------------------------------------
 pxr = pytest.importorskip("pxr", reason="usd-core is not installed: pip install 'taichi_hair[usd]'")
 
 

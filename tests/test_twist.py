@@ -86,8 +86,8 @@ def test_forces_are_the_gradient_at_twist_equilibrium_on_elliptic_helices(strain
 
 def test_solve_from_zero_angles_finds_the_same_minimum():
     """The reported case: a 13-node elliptic helix (ellipticity 1.7, curl radius 1 cm, pitch
-    1.5 cm, 1.7 turns) with its nodes moved by 2 mm; re-solved from zero angles, the solve
-    used to stop at its cap 0.98 rad away from the warm-started answer."""
+    1.5 cm, 1.7 turns) with its nodes moved by 2 mm; re-solved from zero angles, a solve whose
+    step cap binds stops 0.98 rad away from the warm-started answer."""
     length = 1.7 * np.hypot(2 * np.pi * 0.01, 0.015)
     groom = th.Groom.curly(length=length, n_nodes=13, curl_radius=0.01, curl_pitch=0.015)
     sim = quasistatic(groom, th.Material(ellipticity=1.7))

@@ -8,7 +8,7 @@ import numpy as np
 from . import bench
 from . import doctor
 from . import reports
-from . import runner
+from . import run_command
 from . import sweep
 from ..solver.stability import SimulationDiverged
 from ..validation import cli_int, cli_real, one_line_parser_class
@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
     doctor.add_parser(sub)
     bench.add_parser(sub)
-    runner.add_parser(sub)
+    run_command.add_parser(sub)
     sweep.add_parser(sub)
     reports.add_parsers(sub)
     return parser

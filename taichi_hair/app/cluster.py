@@ -161,13 +161,13 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
     the client has the guides, not the dense hair, so Shot.usd must be "guides") and the same
     summary, plus "workers" and "frames_rendered" (PNGs written by this call, each once)."""
     from ..progress import ProgressBar
-    from .runner import (_check_usd, _checkpoint, _resume_point, _summary, _usd_writer, _write_usd_frame,
-                         frame_path, load_guides, prepare_run, remove_guides, save_guides,
-                         simulate_frame, write_video)
+    from .run_output import (check_usd, checkpoint, frame_path, load_guides, open_usd_writer, remove_guides,
+                             resume_point, run_summary, save_guides, write_usd_frame, write_video)
+    from .runner import prepare_run, simulate_frame
     from .outdir import claim_out_dir
     distributed = require_distributed()
     if usd is not None:
-        _check_usd(usd)
+        check_usd(usd)
     out, lock = claim_out_dir(out_dir, script, frames=frames, resume=resume, usd=usd)  # held until return
     run = prepare_run(script, overrides=overrides, settings=settings, draw=False)
     shot, sim = run.shot, run.sim
@@ -175,8 +175,8 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
         raise ValueError(f"--usd with --workers / --scheduler writes the guides only; this shot asks for "
                          f"usd={shot.usd!r} (the dense hair exists on the workers): run it serially")
     total = shot.frames if frames is None else frames
-    done, pending = _resume_point(out, sim, shot, total) if resume else (0, [])
-    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
+    done, pending = resume_point(out, sim, shot, total) if resume else (0, [])
+    usd_writer = open_usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     job = RenderJob(script=str(Path(script).resolve()), settings=tuple(sorted((settings or {}).items())),
                     overrides=tuple(sorted((overrides or {}).items())))
     token, tasks, written = uuid.uuid4().hex[:8], distributed.as_completed(), []
@@ -202,15 +202,15 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
             guides, pose = simulate_frame(sim, shot, times)
             save_guides(out, frame, guides, pose)
             if usd_writer is not None:
-                _write_usd_frame(usd_writer, frame, shot, sim, guides, None, pose)
-            _checkpoint(out, sim, shot, frame + 1)
+                write_usd_frame(usd_writer, frame, shot, sim, guides, None, pose)
+            checkpoint(out, sim, shot, frame + 1)
             submit(frame, guides, pose)
             while tasks.has_ready():
                 write(next(tasks))
         for future in tasks:
             write(future)
     video = write_video(out, script, shot, total)
-    summary = _summary(script, total, done, times, video, sim)
+    summary = run_summary(script, total, done, times, video, sim)
     summary.update(workers=len(client.scheduler_info()["workers"]), frames_rendered=len(written))
     if usd_writer is not None:
         summary["usd"] = str(usd_writer.path)
@@ -274,7 +274,6 @@ def time_rendering(client, script, shot_frames, *, overrides=None) -> dict:
 def _main(argv=None) -> int:
     """python -m taichi_hair.app.cluster SCENE [--frames 48] [--workers 2] [--rounds 3] [--width W --height H
     --dense D]: `bench_rendering`, JSON on stdout."""
-    import argparse
     import json
     import sys
     from ..validation import cli_int, one_line_parser_class

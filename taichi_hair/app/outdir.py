@@ -50,11 +50,11 @@ def claim_out_dir(out_dir, script, *, frames=None, resume=False, usd=None):
 
 
 def _frames_done(out) -> int:
-    """The frame count of out's checkpoint (0 if none or unreadable: _resume_point says why later)."""
+    """The frame count of out's checkpoint (0 if none or unreadable: run_output.resume_point says why later)."""
     try:
         with np.load(Path(out) / STATE_FILE) as data:
             return int(data["extra_frames_done"])
-    except Exception:  # no checkpoint, or a damaged one (refused with its reason by _resume_point)
+    except Exception:  # no checkpoint, or a damaged one (refused with its reason by run_output.resume_point)
         return 0
 
 

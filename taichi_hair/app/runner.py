@@ -1,5 +1,6 @@
-"""`taichi-hair run SCENE.py --out DIR`: simulate a scene script, make dense hair, render PNG
-frames and an MP4, checkpointing after every frame so a killed run resumes where it stopped.
+"""A serial run of a scene script (`taichi-hair run`, run_command.py): simulate it, make dense
+hair, render PNG frames and an MP4, checkpointing after every frame so a killed run resumes where
+it stopped (the output folder's files: run_output.py).
 
 This module is glue: it calls the `render` package for pictures (render knows nothing of
 physics; nothing here rasterises).
@@ -7,21 +8,18 @@ physics; nothing here rasterises).
 
 from dataclasses import dataclass
 import importlib.util
-import json
 import math
-import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import cluster
-from ..world.colliders import _scalar, _vec
 from ..progress import ProgressBar
-from ..world.scene import PROJECTIONS, STRAIN_CHOICES, Scene
-from ..validation import cli_int
-from .outdir import STATE_FILE, claim_out_dir, naming_file
+from ..world.scene import Scene
+from ..validation import choice, cli_int, integer, real, vector3
+from .outdir import claim_out_dir, naming_file
+from .run_output import (check_usd, checkpoint, frame_path, load_guides, log_frame, open_usd_writer,
+                         remove_guides, resume_point, run_summary, write_usd_frame, write_video)
 
 # Image size limits: each side at most MAX_IMAGE_SIDE px, and width x height x supersample^2 (the
 # pixels the rasteriser holds) at most MAX_IMAGE_PIXELS: about 75 bytes of memory per pixel (1.5 GB
@@ -30,8 +28,6 @@ MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 8192 * 8192
 MAX_FRAMES = 1_000_000
 MAX_DENSE = 10_000_000
-PROGRESS_FILE = "progress.json"
-GUIDES_DIR = "guides"  # frames simulated by a cluster run and not yet rendered
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -65,29 +61,25 @@ class Shot:
 
     def __post_init__(self):
         for name in ("frames", "fps", "width", "height", "supersample"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            integer(name, getattr(self, name), low=1)
         for name in ("width", "height"):
             if getattr(self, name) > MAX_IMAGE_SIDE:
                 raise ValueError(f"{name} must be at most {MAX_IMAGE_SIDE} px, got {getattr(self, name)}")
         if self.width * self.height * self.supersample ** 2 > MAX_IMAGE_PIXELS:
             raise ValueError(f"width x height x supersample^2 must be at most {MAX_IMAGE_PIXELS} pixels "
                              f"(8192 x 8192), got {self.width} x {self.height} x {self.supersample}^2")
-        if self.usd not in ("guides", "dense", "both"):
-            raise ValueError(f"usd must be 'guides', 'dense' or 'both', got {self.usd!r}")
-        if not (isinstance(self.dense_strands, int) and self.dense_strands >= 0):
-            raise ValueError(f"dense_strands must be an integer >= 0, got {self.dense_strands!r}")
-        _scalar("dt", self.dt, "s", inclusive=False)
-        _scalar("fov_y", self.fov_y, "degrees", inclusive=False)
-        _scalar("hair_width", self.hair_width, "m", inclusive=False)
+        choice("usd", self.usd, ("guides", "dense", "both"))
+        integer("dense_strands", self.dense_strands, low=0)
+        real("dt", self.dt, "s", low=0.0, low_open=True)
+        real("fov_y", self.fov_y, "degrees", low=0.0, low_open=True)
+        real("hair_width", self.hair_width, "m", low=0.0, low_open=True)
         for name in ("eye", "target"):
             if getattr(self, name) is not None:
-                _vec(name, getattr(self, name))
+                vector3(name, getattr(self, name))
         if (self.eye is None) != (self.target is None):
             raise ValueError("eye and target must both be given (a fixed camera) or both None (fitted)")
-        _vec("view", self.view)
-        _scalar("reach", self.reach, "strand lengths")
+        vector3("view", self.view)
+        real("reach", self.reach, "strand lengths", low=0.0)
         if self.dt > 1.0 / self.fps:
             raise ValueError(f"dt must be at most one frame, 1/fps = {1.0 / self.fps:.4g} s at fps = "
                              f"{self.fps}, got {self.dt!r}")
@@ -135,7 +127,7 @@ class SceneScriptError(ValueError):
     type: a user error (the CLI prints one line; --debug shows the traceback)."""
 
 
-def _call_script(script, module, name, expected):
+def call_script(script, module, name, expected):
     """module.name(), checked to be an `expected`; SceneScriptError naming the script otherwise."""
     try:
         value = getattr(module, name)()
@@ -262,8 +254,8 @@ def prepare_run(script, *, overrides=None, settings=None, draw=True) -> Prepared
     from ..solver.simulator import Simulator
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
-    scene = _call_script(script, module, "build", Scene)
-    shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
+    scene = call_script(script, module, "build", Scene)
+    shot = call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
     if settings:
         scene, shot = apply_settings(scene, shot, settings)
     if overrides:
@@ -294,7 +286,7 @@ def run_scene(script, out_dir, *, frames=None, resume=False, progress=True, over
     run simulated but did not render (their guides in guides/) are rendered first. Returns the
     summary dict."""
     if usd is not None:
-        _check_usd(usd)
+        check_usd(usd)
     out, lock = claim_out_dir(out_dir, script, frames=frames, resume=resume, usd=usd)
     try:
         return _run_locked(script, out, frames, resume, progress, overrides, usd, settings, on_frame)
@@ -306,8 +298,8 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
     run = prepare_run(script, overrides=overrides, settings=settings)
     shot, sim = run.shot, run.sim
     total = shot.frames if frames is None else frames
-    done, pending = _resume_point(out, sim, shot, total) if resume else (0, [])
-    usd_writer = _usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
+    done, pending = resume_point(out, sim, shot, total) if resume else (0, [])
+    usd_writer = open_usd_writer(out / f"{Path(script).stem}.{usd}", shot, run.scene, resume, done) if usd else None
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress, done=done - len(pending)) as bar:
         for frame in pending:
@@ -323,152 +315,16 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
             if on_frame is not None:
                 on_frame(frame, sim)
             if usd_writer is not None:
-                _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose)
-            _checkpoint(out, sim, shot, frame + 1)
+                write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose)
+            checkpoint(out, sim, shot, frame + 1)
             bar.update(1)
             if not progress:
                 log_frame(frame, total, sim.time, times)
     video = write_video(out, script, shot, total)
-    summary = _summary(script, total, done, times, video, sim)
+    summary = run_summary(script, total, done, times, video, sim)
     if usd_writer is not None:
         summary["usd"] = str(usd_writer.path)
     return summary
-
-
-def log_frame(frame, total, t, times, simulated=True, stream=None) -> None:
-    """One line on stderr for a finished frame (the progress report of --no-progress): frame
-    number, simulated time [s] at its end and the wall time [ms] of its simulation,
-    interpolation and rendering (a frame a cluster run simulated: rendered only)."""
-    ms = {k: 1e3 * v[-1] if v else 0.0 for k, v in times.items()}
-    sim = f"sim {ms['simulation']:8.1f} ms" if simulated else "sim (cluster)"
-    print(f"frame {frame + 1:>{len(str(total))}}/{total}  t = {t:.4f} s  {sim}  interpolation "
-          f"{ms['interpolation']:7.1f} ms  render {ms['rendering']:7.1f} ms", file=stream or sys.stderr, flush=True)
-
-
-def frame_path(out, frame) -> Path:
-    return Path(out) / "frames" / f"frame_{frame:05d}.png"
-
-
-def guides_path(out, frame) -> Path:
-    return Path(out) / GUIDES_DIR / f"frame_{frame:05d}.npz"
-
-
-def save_guides(out, frame, guides, pose) -> None:
-    """Write a simulated frame's guides [S, N, 3] m and head pose (R [3, 3], t [3] m) to
-    guides/frame_NNNNN.npz atomically (temporary file, then rename): what a cluster run renders
-    from, kept until the frame's PNG exists, so --resume can render it."""
-    path = guides_path(out, frame)
-    path.parent.mkdir(exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, guides=guides, rotation=pose[0], translation=pose[1])
-    os.replace(tmp, path)
-
-
-def load_guides(out, frame) -> tuple:
-    """(guides [S, N, 3], (R, t)) saved by `save_guides`."""
-    with np.load(guides_path(out, frame)) as data:
-        return data["guides"], (data["rotation"], data["translation"])
-
-
-def remove_guides(out, frame) -> None:
-    """Drop a frame's guides once its PNG is in place (and the folder once it is empty)."""
-    guides_path(out, frame).unlink(missing_ok=True)
-    try:
-        guides_path(out, frame).parent.rmdir()
-    except OSError:  # other frames still pending, or already gone
-        pass
-
-
-def write_video(out, script, shot, total) -> Path:
-    """The MP4 of frames 0..total-1 (read back from their PNGs), <out>/<scene>.mp4."""
-    import render
-    path = Path(out) / f"{Path(script).stem}.mp4"
-    with naming_file(path):
-        return render.write_mp4(path, (render.read_png(frame_path(out, k)) for k in range(total)), fps=shot.fps)
-
-
-def _check_usd(kind):
-    """ValueError (a one-line CLI error) for a bad --usd format or a missing usd-core."""
-    from ..hair.usd import _pxr
-    if kind not in ("usdc", "usda"):
-        raise ValueError(f"--usd must be usdc or usda, got {kind!r}")
-    try:
-        _pxr()
-    except ImportError as exc:
-        raise ValueError(f"--usd: {exc}") from None
-
-
-def _usd_writer(path, shot, scene, resume, done):
-    """The run's UsdCurvesWriter: time code k + 1 is frame k (simulated time (k + 1) / fps); on
-    --resume the file is reopened and keeps the frames the checkpoint counts."""
-    from ..hair import usd
-    mesh = scene.head.mesh if scene.head is not None else None
-    if resume and (done > 0 or path.exists()):
-        return usd.UsdCurvesWriter(path, shot.fps, resume=done)
-    return usd.UsdCurvesWriter(path, shot.fps, head_mesh=mesh)
-
-
-def _write_usd_frame(usd_writer, frame, shot, sim, guides, hair, pose):
-    counts = sim.groom.node_counts
-    sets = {}
-    if shot.usd in ("guides", "both"):
-        sets["Guides"] = [guides[s, : counts[s]] for s in range(sim.n_strands)]
-    if shot.usd in ("dense", "both"):
-        sets["Dense"] = hair
-    for name in sets:
-        if name not in usd_writer.counts:
-            usd_writer.define(name, [len(x) for x in sets[name]], widths=shot.hair_width,
-                              colours=shot.hair_colour)
-    usd_writer.write_frame(frame + 1, sets, head_pose=pose)
-
-
-def _checkpoint(out, sim, shot, frames_done):
-    """One atomic record: the state file holds the frame count and frame step with the state
-    (written to a temporary file and renamed); progress.json is a copy for people and monitors,
-    also replaced atomically, never read back."""
-    with naming_file(out / STATE_FILE):
-        sim.save_state(out / STATE_FILE, extra={"frames_done": frames_done, "frame_dt": shot.frame_dt,
-                                                 "fps": shot.fps})
-    tmp = out / (PROGRESS_FILE + ".tmp")
-    with naming_file(tmp):
-        tmp.write_text(json.dumps({"frames_done": frames_done, "time": sim.time}))
-    tmp.replace(out / PROGRESS_FILE)
-
-
-def _resume_point(out, sim, shot, total=None) -> tuple:
-    """(frames simulated, frames of those still to render): restore the simulator from the last
-    checkpoint, after checking that the record is whole and agrees with itself and this shot
-    (ValueError naming the file). A frame below the count may lack its PNG only if its guides
-    are in guides/ (a cluster run renders behind the simulation)."""
-    state = out / STATE_FILE
-    if not state.exists():
-        return 0, []
-    try:
-        with np.load(state) as data:
-            done, frame_dt, fps, t = (int(data["extra_frames_done"]), float(data["extra_frame_dt"]),
-                                      int(data["extra_fps"]), float(data["time"]))
-    except KeyError:
-        raise ValueError(f"{state}: the checkpoint holds no frame count (written by an older taichi_hair?); "
-                         f"delete {out} to start over") from None
-    except Exception as err:  # a damaged zip or array: numpy raises several types
-        raise ValueError(f"{state}: not a readable checkpoint ({type(err).__name__}: {err}); "
-                         f"delete {out} to start over") from None
-    if (fps, frame_dt) != (shot.fps, shot.frame_dt):
-        raise ValueError(f"{state}: the checkpoint was made at fps {fps} with step {frame_dt:.6g} s, this shot "
-                         f"runs at fps {shot.fps} with step {shot.frame_dt:.6g} s; delete {out} to start over")
-    if not (0 <= done and abs(t - done / fps) <= 1e-6 * max(1.0, t)):
-        raise ValueError(f"{state}: inconsistent checkpoint: {done} frames done at fps {fps} is "
-                         f"{done / fps:.6g} s, but its state is at t = {t:.6g} s; delete {out} to start over")
-    if total is not None and done > total:
-        raise ValueError(f"{out}: {done} frames are already finished, more than the {total} asked for "
-                         f"(--resume would cut the video short): ask for {done} frames or more")
-    pending = [k for k in range(done) if not frame_path(out, k).exists()]
-    missing = [k for k in pending if not guides_path(out, k).exists()]
-    if missing:
-        raise ValueError(f"{out}: checkpoint says {done} frames are done but frame {missing[0]} is missing; "
-                         f"delete {out} to start over")
-    sim.load_state(state)
-    return done, pending
 
 
 def simulate_frame(sim, shot, times) -> tuple:
@@ -499,51 +355,6 @@ def render_frame(path, frame, guides, pose, run: PreparedRun, times):
     return hair
 
 
-def _summary(script, total, resumed_from, times, video, sim) -> dict:
-    per_frame = {k: (1e3 * float(np.median(v)) if v else 0.0) for k, v in times.items()}
-    return {"scene": str(script), "frames": total, "resumed_from": resumed_from, "video": str(video),
-            "ms_per_frame": per_frame, "simulated_s": sim.time, "stats": sim.stats()}
-
-
-def format_summary(summary: dict) -> str:
-    ms = summary["ms_per_frame"]
-    usd = f" + {summary['usd']}" if summary.get("usd") else ""
-    if "workers" in summary:
-        usd += f" ({summary['frames_rendered']} frames rendered on {summary['workers']} Dask workers)"
-    resumed = f" (resumed from {summary['resumed_from']})" if summary["resumed_from"] else ""
-    return (f"{summary['scene']}: {summary['frames']} frames{resumed}, "
-            f"{summary['simulated_s']:.3f} s simulated -> {summary['video']}{usd}\n"
-            f"median ms per frame: simulation {ms['simulation']:.1f}, interpolation "
-            f"{ms['interpolation']:.1f}, rendering {ms['rendering']:.1f}")
-
-
-def add_parser(sub):
-    p = sub.add_parser("run", help="simulate a scene script and render frames, an MP4 and checkpoints")
-    p.add_argument("scene", help="path of a scene script, e.g. scenes/shake_curly.py")
-    p.add_argument("--out", default=None, help="output directory (default: out/<scene name>, e.g. out/shake_curly)")
-    p.add_argument("--frames", type=cli_int("--frames", 1, MAX_FRAMES), default=None,
-                   help="frames to make (default: the scene's shot)")
-    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
-    add_image_arguments(p)
-    p.add_argument("--usd", nargs="?", const="usdc", default=None, choices=["usdc", "usda"],
-                   help="also write DIR/<scene>.usdc (or .usda) of animated curves (needs the usd extra; "
-                        "default: no USD; --usd alone: usdc)")
-    p.add_argument("--integrator", default=None, choices=["explicit", "implicit"],
-                   help="override the scene's integrator (implicit: no stability bound, docs/model.md; "
-                        "default: the scene's)")
-    p.add_argument("--projection", default=None, choices=PROJECTIONS,
-                   help="override the explicit step's projection (shake: keeps an undamped swing's energy; "
-                        "default: the scene's)")
-    p.add_argument("--strain", default=None, choices=[c for c in STRAIN_CHOICES if c],
-                   help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md; "
-                        "default: the scene's)")
-    p.add_argument("--no-progress", action="store_true",
-                   help="no progress bar: one line per frame on stderr (frame, simulated time, sim / "
-                        "interpolation / render ms)")
-    cluster.add_arguments(p)
-    p.set_defaults(func=main)
-
-
 def add_image_arguments(p) -> None:
     """--width, --height (each in [1, MAX_IMAGE_SIDE] px) and --dense (in [0, MAX_DENSE])."""
     p.add_argument("--width", type=cli_int("--width", 1, MAX_IMAGE_SIDE), default=None,
@@ -558,26 +369,3 @@ def shot_overrides(args) -> dict:
     """The Shot fields the command line sets (--width, --height, --dense)."""
     return {k: v for k, v in (("width", args.width), ("height", args.height),
                               ("dense_strands", args.dense)) if v is not None}
-
-
-def default_out(scene) -> Path:
-    """The output folder when --out is not given: out/<scene script's name>."""
-    return Path("out") / Path(scene).stem
-
-
-def main(args) -> int:
-    if not Path(args.scene).is_file():  # before any folder is made for it
-        raise ValueError(f"scene script {args.scene} does not exist")
-    if args.out is None:
-        args.out = str(default_out(args.scene))
-    options = dict(frames=args.frames, resume=args.resume, progress=not args.no_progress,
-                   overrides=shot_overrides(args),
-                   settings={k: v for k, v in (("integrator", args.integrator), ("projection", args.projection),
-                                               ("strain", args.strain)) if v} or None)
-    if cluster.wanted(args):
-        with cluster.client_from_args(args) as client:
-            summary = cluster.run_scene(client, args.scene, args.out, usd=args.usd, **options)
-    else:
-        summary = run_scene(args.scene, args.out, usd=args.usd, **options)
-    print(format_summary(summary))
-    return 0

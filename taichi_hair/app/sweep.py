@@ -110,14 +110,14 @@ def _check_points(script, points):
     fails at once (ValueError naming it) rather than on a worker later. Builds the scene once."""
     if not points or not points[0]:
         return
-    from .runner import Shot, _call_script, load_scene_module
+    from .runner import Shot, call_script, load_scene_module
     from ..runtime import init
     from ..world.scene import Scene
     from .settings import apply_settings
     module = load_scene_module(script)
     init(precision=getattr(module, "PRECISION", "float32"))
-    scene = _call_script(script, module, "build", Scene)
-    shot = _call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
+    scene = call_script(script, module, "build", Scene)
+    shot = call_script(script, module, "shot", Shot) if callable(getattr(module, "shot", None)) else Shot()
     for point in points:
         apply_settings(scene, shot, point)
 

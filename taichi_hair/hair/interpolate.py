@@ -32,8 +32,8 @@ import taichi as ti
 from ..rods.frames import parallel_transport
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..runtime import ensure_init, precision
-from ..validation import is_real
-from .scalp import (MAX_POLAR_DEG, ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
+from ..validation import choice, is_real
+from .scalp import (ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
 
 MODES = ("barycentric", "clump", "blend")
@@ -475,8 +475,7 @@ def _check_rotation(rotation):
 def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variation,
                curl_phase_variation, seed, offset_length):
     """Per-strand parameters [D, 5] (see `_dense_nodes`) and frizz keys [D], all seeded."""
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    choice("mode", mode, MODES)
     beta = np.asarray(blend, dtype=np.float64) if mode == "blend" else np.asarray(float(mode == "clump"))
     beta = np.full(n_dense, beta) if beta.ndim == 0 else beta
     if beta.shape != (n_dense,) or not np.all((beta >= 0) & (beta <= 1)):
@@ -545,7 +544,6 @@ def bench_interpolation(n_dense=100_000, n_nodes=32, n_guides=1000, repeats=5) -
 
 
 def _main(argv=None):
-    import argparse
     from ..runtime import init
     from ..validation import cli_int, one_line_parser_class
     parser = one_line_parser_class()(description="Benchmark dense hair interpolation.")

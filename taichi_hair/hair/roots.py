@@ -14,33 +14,12 @@ import math
 import numpy as np
 
 from ..rods.groom import Groom, arc_lengths, resample_by_arc_length
+from ..validation import choice, integer, real, vector3
 from ..world.headmesh import HeadModel
 
 STYLES = ("straight", "wavy", "curly")
 CANDIDATES_PER_ROOT = 24  # dense candidates per requested root for farthest-point sampling
 MIN_CANDIDATES = 4000
-
-
-def _check(name, value, unit, *, low=None, high=None, low_open=False, integer=False):
-    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
-    ok = isinstance(value, kinds) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (low is None or (value > low if low_open else value >= low)) and (high is None or value <= high)
-    if not ok:
-        bounds = [f"{'>' if low_open else '>='} {low:g}"] if low is not None else []
-        bounds += [f"<= {high:g}"] if high is not None else []
-        what = "an integer" if integer else "a finite number"
-        raise ValueError(f"{name} must be {what} {' and '.join(bounds)} {unit}, got {value!r}".rstrip())
-    return value
-
-
-def _unit_vector(name, value):
-    try:
-        v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        v = None
-    if v is None or v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-12:
-        raise ValueError(f"{name} must be a finite non-zero 3-vector (it is normalised), got {value!r}")
-    return v / np.linalg.norm(v)
 
 
 COVERED_CLEARANCE = 0.003  # [m] scalp this close to a capsule's surface (or inside) is covered
@@ -83,10 +62,10 @@ def sample_scalp(head: HeadModel, n: int, *, seed: int = 0, min_distance: float 
     thousands of dense-hair roots, where farthest-point sampling (O(n^2)) is too slow.
     """
     faces = _scalp_triangles(head)
-    _check("n", n, "roots", low=1, integer=True)
-    _check("seed", seed, "", low=0, integer=True)
+    integer("n", n, low=1)
+    integer("seed", seed, low=0)
     if min_distance is not None:
-        _check("min_distance", min_distance, "m", low=0.0)
+        real("min_distance", min_distance, "m", low=0.0)
     rng = np.random.default_rng(seed)
     tri = head.faces[faces]
     areas = head.face_areas()[faces]
@@ -279,20 +258,19 @@ def scalp_groom(head: HeadModel, n_guides: int, *, style: str = "straight", leng
     over it (kept clearance plus the wave or curl amplitude away), and any node past the root
     edge still closer than clearance [m] is pushed out. seed: roots, lengths and shapes.
     """
-    if style not in STYLES:
-        raise ValueError(f"style must be one of {STYLES}, got {style!r}")
-    _check("n_nodes", n_nodes, "nodes", low=3, integer=True)
-    _check("length", length, "m", low=0.0, low_open=True)
-    _check("length_variation", length_variation, "(relative)", low=0.0, high=0.95)
-    _check("comb_strength", comb_strength, "", low=0.0)
-    _check("droop_length", droop_length, "m", low=0.0, low_open=True)
-    _check("root_offset", root_offset, "m", low=0.0)
-    _check("clearance", clearance, "m", low=0.0)
-    _check("shape_variation", shape_variation, "(relative)", low=0.0, high=0.9)
+    choice("style", style, STYLES)
+    integer("n_nodes", n_nodes, low=3)
+    real("length", length, "m", low=0.0, low_open=True)
+    real("length_variation", length_variation, "(relative)", low=0.0, high=0.95)
+    real("comb_strength", comb_strength, "", low=0.0)
+    real("droop_length", droop_length, "m", low=0.0, low_open=True)
+    real("root_offset", root_offset, "m", low=0.0)
+    real("clearance", clearance, "m", low=0.0)
+    real("shape_variation", shape_variation, "(relative)", low=0.0, high=0.9)
     for name, value in (("wave_amplitude", wave_amplitude), ("wave_wavelength", wave_wavelength),
                         ("curl_radius", curl_radius), ("curl_pitch", curl_pitch)):
-        _check(name, value, "m", low=0.0, low_open=name != "wave_amplitude")
-    comb = _unit_vector("comb", comb)
+        real(name, value, "m", low=0.0, low_open=name != "wave_amplitude")
+    comb = vector3("comb", comb, normalise=True)
     if collider is not None and not all(hasattr(collider, a) for a in ("sample", "gradient")):
         raise ValueError(f"collider must be a SignedDistanceGrid or None, got {type(collider).__name__}")
     roots, normals = sample_scalp(head, n_guides, seed=seed)

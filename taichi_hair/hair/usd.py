@@ -30,22 +30,13 @@ EXTRA_HINT = "pip install 'taichi_hair[usd]'"
 CUBIC_BASES = ("bezier", "bspline", "catmullRom")
 
 
-def _pxr():
+def require_pxr():
     """(Usd, UsdGeom, Sdf, Vt, Gf), or ImportError naming the extra."""
     try:
         from pxr import Gf, Sdf, Usd, UsdGeom, Vt
     except ImportError as exc:
         raise ImportError(f"USD support needs Pixar's usd-core: {EXTRA_HINT}") from exc
     return Usd, UsdGeom, Sdf, Vt, Gf
-
-
-def usd_available() -> bool:
-    """True when `pxr` (usd-core) can be imported."""
-    try:
-        _pxr()
-    except ImportError:
-        return False
-    return True
 
 
 @dataclass(eq=False)
@@ -83,7 +74,7 @@ def read_usd_curves(path, prim=None, n_nodes=None, time=None) -> UsdCurves:
     Raises HairFileError naming the file (and prim) for a missing or unreadable file, no curves,
     a curve with fewer than 3 points (or too few for its cubic basis), non-finite points,
     counts that do not add up, periodic curves, or an unknown basis."""
-    Usd, UsdGeom, Sdf, Vt, Gf = _pxr()
+    Usd, UsdGeom, Sdf, Vt, Gf = require_pxr()
     path = Path(path)
     if n_nodes is not None and not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 3):
         raise ValueError(f"n_nodes must be an integer >= 3, got {n_nodes!r}")
@@ -345,7 +336,7 @@ class UsdCurvesWriter:
     ValueError when the file is missing or holds fewer frames."""
 
     def __init__(self, path, fps, *, head_mesh=None, resume=None, first_time_code=1):
-        self.Usd, self.UsdGeom, self.Sdf, self.Vt, self.Gf = _pxr()
+        self.Usd, self.UsdGeom, self.Sdf, self.Vt, self.Gf = require_pxr()
         self.path = Path(path)
         if self.path.suffix not in (".usd", ".usdc", ".usda"):
             raise ValueError(f"USD path must end in .usdc, .usda or .usd, got {self.path}")

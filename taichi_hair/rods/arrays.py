@@ -26,7 +26,6 @@ Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)  # [S, N] or [S, N - 1]
 Vec3s3 = ti.types.ndarray(dtype=vec3, ndim=3)  # [S, N, k]
 Vec4s1 = ti.types.ndarray(dtype=vec4, ndim=1)
 Vec4s2 = ti.types.ndarray(dtype=vec4, ndim=2)
-Mat3s1 = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
 # node positions are stored in float64 in both precisions: in float32 each update rounded a
 # position to eps |x| (3e-8 m at 0.3 m, whatever the segment), and stiff fine hair turned that
 # rounding into energy at every substep; edges are formed in float64 and rounded once,

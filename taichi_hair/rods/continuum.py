@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from ..validation import integer, real, vector3
+
 RESIDUAL_RTOL = 1e-10  # converged when |m(L)| <= this * |f| L^2 (the root moment's scale)
 CONTINUATION_RTOL = 1e-6  # intermediate load steps only need to land in Newton's basin
 FD_RELATIVE_STEP = 1e-7  # forward-difference step on m(0), relative to |f| L^2
@@ -49,7 +51,7 @@ def kirchhoff_static(length, intrinsic, stiffness, load, root_position, root_fra
     when Newton does not converge.
     """
     rod = _Rod(length, intrinsic, stiffness, load, root_position, root_frame)
-    n = _check_steps(n_steps)
+    n = integer("n_steps", n_steps, low=2)
     scale = np.linalg.norm(rod.load) * rod.length ** 2
     if scale == 0.0:  # no load: m' = 0 and m(L) = 0 force m = 0, the unloaded shape
         return _result(rod, n, np.zeros(3), 0)
@@ -67,8 +69,8 @@ def helix_strains(curl_radius, curl_pitch):
     """(kappa, tau) [1/m]: curvature and torsion of a helix of radius R = curl_radius [m] and
     pitch p = curl_pitch [m per turn]: c = p / (2 pi), kappa = R / (R^2 + c^2),
     tau = c / (R^2 + c^2). tau > 0 is a right-handed helix (as Groom.curly draws it)."""
-    radius = _positive("curl_radius", curl_radius, "m")
-    pitch = _positive("curl_pitch", curl_pitch, "m", allow_zero=True)
+    radius = real("curl_radius", curl_radius, "m", low=0.0, low_open=True)
+    pitch = real("curl_pitch", curl_pitch, "m", low=0.0)
     rise = pitch / (2.0 * math.pi)
     denominator = radius ** 2 + rise ** 2
     return radius / denominator, rise / denominator
@@ -81,8 +83,8 @@ def curly_root_frame(direction, curl_radius, curl_pitch, phase=0.0):
     it from the root: axis along `direction`, curl_radius beside the root, turning from the
     angle `phase` [rad] in the plane of the two side axes Groom's `_frames` picks."""
     side, side2, up = _groom_axes(direction)
-    radius = _positive("curl_radius", curl_radius, "m")
-    rise = _positive("curl_pitch", curl_pitch, "m", allow_zero=True) / (2.0 * math.pi)
+    radius = real("curl_radius", curl_radius, "m", low=0.0, low_open=True)
+    rise = real("curl_pitch", curl_pitch, "m", low=0.0) / (2.0 * math.pi)
     turn = 1.0 / math.hypot(radius, rise)  # helix angle per unit arc length [rad/m]
     c, s = math.cos(phase), math.sin(phase)
     # Groom.curly's local curve is R (cos a, sin a) + rise a, a = turn s + phase; at s = 0:
@@ -98,10 +100,10 @@ def hanging_helix(length, curl_radius, curl_pitch, direction, stiffness, linear_
     """`kirchhoff_static` for a Groom.curly helix (see `curly_root_frame`) of `length` [m] loaded
     by its weight: f = linear_density [kg/m] * gravity [m/s^2]. stiffness = (B1, B2, C) [N m^2]
     with B1 about the binormal and B2 about the normal of the unloaded helix."""
-    density = _positive("linear_density", linear_density, "kg/m", allow_zero=True)
+    density = real("linear_density", linear_density, "kg/m", low=0.0)
     kappa, tau = helix_strains(curl_radius, curl_pitch)
     frame = curly_root_frame(direction, curl_radius, curl_pitch, phase)
-    load = density * _vector("gravity", gravity)
+    load = density * vector3("gravity", gravity)
     return kirchhoff_static(length, (kappa, 0.0, tau), stiffness, load, root, frame, n_steps)
 
 
@@ -109,15 +111,15 @@ class _Rod:
     """Validated problem data: length, 1 / stiffness (3,), load (3,), root, frame rows d_i."""
 
     def __init__(self, length, intrinsic, stiffness, load, root_position, root_frame):
-        self.length = _positive("length", length, "m")
-        stiffness = _vector("stiffness", stiffness)
+        self.length = real("length", length, "m", low=0.0, low_open=True)
+        stiffness = vector3("stiffness", stiffness)
         if not np.all(stiffness > 0):
             raise ValueError(f"stiffness (B1, B2, C) must all be > 0 N m^2, got {stiffness.tolist()}")
         self.compliance = 1.0 / stiffness
-        self.load = _vector("load", load)
-        self.root = _vector("root_position", root_position)
+        self.load = vector3("load", load)
+        self.root = vector3("root_position", root_position)
         self.frame_rows = _rotation(root_frame).T  # row i is d_i
-        self.intrinsic = intrinsic if callable(intrinsic) else _vector("intrinsic", intrinsic)
+        self.intrinsic = intrinsic if callable(intrinsic) else vector3("intrinsic", intrinsic)
         self._tables = {}  # grid size -> intrinsic_table, evaluated once per grid
         # n x d3 = (L - s) skew(f) d3; for a batch of row vectors d3 that is d3 @ skew(f).T
         fx, fy, fz = self.load
@@ -253,7 +255,7 @@ def _result(rod, n, m0, load_steps):
 
 def _groom_axes(direction):
     """Groom._frames for one strand: side, side2, up (unit, right-handed: side x side2 = up)."""
-    up = _vector("direction", direction)
+    up = vector3("direction", direction)
     norm = np.linalg.norm(up)
     if norm < 1e-12:
         raise ValueError(f"direction must be a non-zero vector, got {up.tolist()}")
@@ -262,24 +264,6 @@ def _groom_axes(direction):
     side = np.cross(up, helper)
     side /= np.linalg.norm(side)
     return side, np.cross(up, side), up
-
-
-def _positive(name, value, unit, allow_zero=False):
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number [{unit}], got {value!r}") from None
-    if not math.isfinite(number) or number < 0 or (number == 0 and not allow_zero):
-        raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0 {unit}, "
-                         f"got {value!r}")
-    return number
-
-
-def _vector(name, value):
-    array = np.asarray(value, dtype=np.float64)
-    if array.shape != (3,) or not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
-    return array
 
 
 def _rotation(frame):
@@ -291,9 +275,3 @@ def _rotation(frame):
         raise ValueError("root_frame must be a rotation: orthonormal columns d1, d2, d3 with "
                          "d1 x d2 = d3 (det = +1)")
     return array
-
-
-def _check_steps(n_steps):
-    if isinstance(n_steps, bool) or not isinstance(n_steps, (int, np.integer)) or n_steps < 2:
-        raise ValueError(f"n_steps must be an integer >= 2, got {n_steps!r}")
-    return int(n_steps)

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ..validation import is_real
+from ..validation import integer, real
 
 MIN_SEGMENT_LENGTH = 1e-7  # [m]; shorter edges make the curvature binormal ill-conditioned
 MAX_TURNING_ANGLE_DEG = 170.0  # kb = 2 tan(phi/2) diverges as a strand folds back on itself
@@ -116,8 +116,8 @@ class Groom:
              amplitude=0.01, wavelength=0.06, phase=0.0) -> "Groom":
         """Planar sine waves: offset amplitude * sin(2 pi d / wavelength + phase) [m] sideways at
         distance d along `directions`; nodes are spaced evenly in arc length."""
-        _check_positive("amplitude", amplitude, "m", allow_zero=True)
-        _check_positive("wavelength", wavelength, "m")
+        real("amplitude", amplitude, "m", low=0.0)
+        real("wavelength", wavelength, "m", low=0.0, low_open=True)
 
         def wave(d):
             return amplitude * (np.sin(2 * np.pi * d / wavelength + phase) - math.sin(phase))
@@ -129,12 +129,12 @@ class Groom:
         """Helices of radius `curl_radius` [m] and pitch `curl_pitch` [m per turn] about an axis
         along `directions` that passes curl_radius beside the root; nodes evenly spaced in arc
         length, so every edge has the same length and the discrete curvature is uniform."""
-        _check_positive("curl_radius", curl_radius, "m")
-        _check_positive("curl_pitch", curl_pitch, "m", allow_zero=True)
-        _check_positive("length", length, "m")
+        real("curl_radius", curl_radius, "m", low=0.0, low_open=True)
+        real("curl_pitch", curl_pitch, "m", low=0.0)
+        real("length", length, "m", low=0.0, low_open=True)
         rise = curl_pitch / (2 * np.pi)
         omega = 1.0 / math.hypot(curl_radius, rise)  # helix angle per unit arc length [rad/m]
-        s = np.linspace(0.0, length, _check_count(n_nodes))
+        s = np.linspace(0.0, length, integer("n_nodes", n_nodes, low=3))
         angle = omega * s + phase
         local = np.stack([curl_radius * (np.cos(angle) - math.cos(phase)),
                           curl_radius * (np.sin(angle) - math.sin(phase)),
@@ -145,18 +145,6 @@ class Groom:
     def concatenate(cls, grooms) -> "Groom":
         """One groom holding the strands of several (e.g. mixed hair types)."""
         return cls.from_polylines([g.strand(s) for g in grooms for s in range(g.n_strands)])
-
-
-def _check_positive(name, value, unit, allow_zero=False):
-    ok = is_real(value) and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
-    if not ok:
-        raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0 {unit}, got {value!r}")
-
-
-def _check_count(n_nodes):
-    if not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 3):
-        raise ValueError(f"n_nodes must be an integer >= 3, got {n_nodes!r}")
-    return int(n_nodes)
 
 
 def _frames(roots, directions):
@@ -188,8 +176,8 @@ def _place(local, roots, directions):
 def _procedural(roots, directions, length, n_nodes, offset):
     """Strands along their directions with a sideways `offset(d)` [m] at distance d, resampled to
     `n_nodes` nodes evenly spaced in arc length."""
-    _check_positive("length", length, "m")
-    n_nodes = _check_count(n_nodes)
+    real("length", length, "m", low=0.0, low_open=True)
+    n_nodes = integer("n_nodes", n_nodes, low=3)
     fine = np.linspace(0.0, 4.0 * length, 64 * n_nodes)  # overshoot: a wave is longer than its span
     local = np.zeros((len(fine), 3))
     local[:, 2] = fine

@@ -13,12 +13,7 @@ import math
 
 import numpy as np
 
-from ..validation import is_real
-
-
-def _check_positive(name: str, value: float, unit: str) -> None:
-    if not (is_real(value) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0 {unit}, got {value!r}")
+from ..validation import is_real, real
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,10 +34,10 @@ class Material:
     ellipticity: float = 1.0
 
     def __post_init__(self):
-        _check_positive("youngs_modulus", self.youngs_modulus, "Pa")
-        _check_positive("shear_modulus", self.shear_modulus, "Pa")
-        _check_positive("radius", self.radius, "m")
-        _check_positive("density", self.density, "kg/m^3")
+        real("youngs_modulus", self.youngs_modulus, "Pa", low=0.0, low_open=True)
+        real("shear_modulus", self.shear_modulus, "Pa", low=0.0, low_open=True)
+        real("radius", self.radius, "m", low=0.0, low_open=True)
+        real("density", self.density, "kg/m^3", low=0.0, low_open=True)
         e = self.ellipticity
         if not (is_real(e) and math.isfinite(e) and e >= 1.0):
             raise ValueError(f"ellipticity must be a finite number >= 1 (major/minor axis ratio), got {e!r}")

@@ -18,7 +18,8 @@ from ..validation import is_integer, is_real
 from ..world.forces import Grab, Wind
 from ..world.options import DEFAULT_PROJECTION_TOL, Environment, SolverOptions, split_keywords
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
-from ..world.scene import Head, _host_distance
+from ..world.colliders import host_distance
+from ..world.scene import Head
 from .checkpoint import pose_rows
 from .collisions import root_keeps_collider
 from .control import build_control, load_poses, load_tools
@@ -119,7 +120,7 @@ class Simulator(Records, RodAccess):
         accurate at coarse resolution: a curled rod's tip 4x closer to the continuum at 50
         segments than with "der"), "der" (Discrete Elastic Rods' curvature binormal
         2 tan(phi/2) seen from each edge's material frame and the twist as a difference of
-        angles, the measure before 2026-12-03, kept to compare) or None (default: "rotation",
+        angles, kept to compare) or None (default: "rotation",
         but "der" for a groom that carries its own rest curvatures, which are DER's: sag_free
         makes them, and under twist="kmoch", whose rule was built on DER and gains energy on
         elliptic curls under the rotation measure: that pair is refused). `sim.strain` says
@@ -286,7 +287,7 @@ class Simulator(Records, RodAccess):
         skipped = []
         for k, c in enumerate(colliders):
             roots = head_roots if c.attached == "head" else world_roots
-            depth = _host_distance(c, roots)
+            depth = host_distance(c, roots)
             skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
         if skipped:
             kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})

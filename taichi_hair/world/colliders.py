@@ -10,34 +10,16 @@ given to a node stays within friction x the sum of its pushes; docs/model.md, "C
 """
 
 from dataclasses import dataclass
-import math
 
 import numpy as np
 import taichi as ti
 
 from ..rods.arrays import vec3
 from ..rods.linalg import corner_factors, corner_signs, grid_cell
-from ..validation import is_real
+from ..validation import choice, real, vector3
 
 SPHERE, ELLIPSOID, CAPSULE, PLANE = 0, 1, 2, 3
 ATTACHMENTS = ("head", "world")
-
-
-def _vec(name, value, positive=False):
-    v = np.asarray(value, dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or (positive and np.any(v <= 0)):
-        rule = "a finite 3-vector" + (" with every entry > 0" if positive else "")
-        raise ValueError(f"{name} must be {rule}, got {value!r}")
-    return v
-
-
-def _scalar(name, value, unit, minimum=0.0, inclusive=True):
-    ok = is_real(value) and math.isfinite(value) and (
-        value >= minimum if inclusive else value > minimum)
-    if not ok:
-        raise ValueError(f"{name} must be a finite number {'>=' if inclusive else '>'} {minimum:g} {unit}, "
-                         f"got {value!r}")
-    return float(value)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,10 +29,9 @@ class _Collider:
     attached: str = "head"
 
     def _check_common(self):
-        _scalar("margin", self.margin, "m")
-        _scalar("friction", self.friction, "(Coulomb coefficient)")
-        if self.attached not in ATTACHMENTS:
-            raise ValueError(f"attached must be one of {ATTACHMENTS}, got {self.attached!r}")
+        real("margin", self.margin, "m", low=0.0)
+        real("friction", self.friction, "(Coulomb coefficient)", low=0.0)
+        choice("attached", self.attached, ATTACHMENTS)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,8 +43,8 @@ class Sphere(_Collider):
 
     def __post_init__(self):
         self._check_common()
-        _vec("centre", self.centre)
-        _scalar("radius", self.radius, "m", inclusive=False)
+        vector3("centre", self.centre)
+        real("radius", self.radius, "m", low=0.0, low_open=True)
 
     def packed(self):
         return SPHERE, self.centre, (0.0, 0.0, 0.0), self.radius
@@ -79,8 +60,8 @@ class Ellipsoid(_Collider):
 
     def __post_init__(self):
         self._check_common()
-        _vec("centre", self.centre)
-        _vec("radii", self.radii, positive=True)
+        vector3("centre", self.centre)
+        vector3("radii", self.radii, positive=True)
 
     def packed(self):
         return ELLIPSOID, self.centre, self.radii, 0.0
@@ -96,9 +77,9 @@ class Capsule(_Collider):
 
     def __post_init__(self):
         self._check_common()
-        _vec("p0", self.p0)
-        _vec("p1", self.p1)
-        _scalar("radius", self.radius, "m", inclusive=False)
+        vector3("p0", self.p0)
+        vector3("p1", self.p1)
+        real("radius", self.radius, "m", low=0.0, low_open=True)
 
     def packed(self):
         return CAPSULE, self.p0, self.p1, self.radius
@@ -114,8 +95,8 @@ class Plane(_Collider):
 
     def __post_init__(self):
         self._check_common()
-        _vec("point", self.point)
-        n = _vec("normal", self.normal)
+        vector3("point", self.point)
+        n = vector3("normal", self.normal)
         if np.linalg.norm(n) < 1e-9:
             raise ValueError(f"normal must be non-zero, got {self.normal!r}")
 
@@ -138,8 +119,8 @@ class MeshCollider(_Collider):
         if values is None or np.asarray(values).ndim != 3 or min(np.asarray(values).shape) < 2:
             raise ValueError("grid must be a signed-distance grid with values [nx, ny, nz] (nx, ny, nz >= 2), "
                              f"origin [3] and spacing; got {type(self.grid).__name__}")
-        _scalar("grid.spacing", float(self.grid.spacing), "m", inclusive=False)
-        _vec("grid.origin", self.grid.origin)
+        real("grid.spacing", float(self.grid.spacing), "m", low=0.0, low_open=True)
+        vector3("grid.origin", self.grid.origin)
 
 
 # ---- distance functions, in the collider's own frame ------------------------------------------
@@ -217,3 +198,23 @@ def pack_colliders(colliders):
         geometry[k] = [a, b]
         params[k] = [radius, c.margin, c.friction, 1.0 if c.attached == "head" else 0.0]
     return len(analytic), kinds, geometry, params
+
+
+def host_distance(c, p):
+    """Signed distance [m], shape [M], of points p [M, 3] m from one collider `c`, on the host (the
+    kernels' formulas)."""
+    if isinstance(c, MeshCollider):
+        return c.grid.sample(p)
+    kind, a, b, radius = c.packed()
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if isinstance(c, Sphere):
+        return np.linalg.norm(p - a, axis=1) - radius
+    if isinstance(c, Ellipsoid):
+        q = p - a
+        k0 = np.linalg.norm(q / b, axis=1)
+        return k0 * (k0 - 1.0) / np.maximum(np.linalg.norm(q / b**2, axis=1), 1e-12)
+    if isinstance(c, Capsule):
+        ab = b - a
+        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+        return np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - radius
+    return (p - a) @ b

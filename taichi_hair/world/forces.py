@@ -9,7 +9,7 @@ import numpy as np
 import taichi as ti
 
 from ..rods.arrays import vec3
-from .colliders import _scalar, _vec
+from ..validation import real, vector3
 
 N_GUSTS = 3  # sinusoids summed for the gust signal
 N_MODES = 8  # Fourier modes of the spatial noise field
@@ -33,11 +33,11 @@ class Wind:
     seed: int = 0
 
     def __post_init__(self):
-        _vec("velocity", self.velocity)
-        _scalar("gust_amplitude", self.gust_amplitude, "(relative)")
-        _scalar("gust_frequency", self.gust_frequency, "Hz", inclusive=False)
-        _scalar("turbulence", self.turbulence, "m/s")
-        _scalar("turbulence_scale", self.turbulence_scale, "m", inclusive=False)
+        vector3("velocity", self.velocity)
+        real("gust_amplitude", self.gust_amplitude, "(relative)", low=0.0)
+        real("gust_frequency", self.gust_frequency, "Hz", low=0.0, low_open=True)
+        real("turbulence", self.turbulence, "m/s", low=0.0)
+        real("turbulence_scale", self.turbulence_scale, "m", low=0.0, low_open=True)
 
     def tables(self):
         """Kernel tables: gusts [N_GUSTS] vec3 (amplitude, angular frequency, phase) and noise
@@ -92,9 +92,9 @@ class Hand:
 
     def __post_init__(self):
         _check_path(self.path)
-        _scalar("radius", self.radius, "m", inclusive=False)
-        _scalar("margin", self.margin, "m")
-        _scalar("friction", self.friction, "(Coulomb coefficient)")
+        real("radius", self.radius, "m", low=0.0, low_open=True)
+        real("margin", self.margin, "m", low=0.0)
+        real("friction", self.friction, "(Coulomb coefficient)", low=0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -110,8 +110,8 @@ class Grab:
 
     def __post_init__(self):
         _check_path(self.path)
-        _scalar("radius", self.radius, "m", inclusive=False)
-        _scalar("stiffness", self.stiffness, "N/m", inclusive=False)
+        real("radius", self.radius, "m", low=0.0, low_open=True)
+        real("stiffness", self.stiffness, "N/m", low=0.0, low_open=True)
         if self.active is not None and not callable(self.active):
             raise ValueError("active must be a callable t -> bool, or None (always active)")
 
@@ -122,7 +122,7 @@ class Grab:
 def _check_path(path):
     if not callable(path):
         raise ValueError("path must be a callable t [s] -> position [3] in metres")
-    _vec("path(0)", path(0.0))
+    vector3("path(0)", path(0.0))
 
 
 HAND, GRAB = 0, 1
@@ -140,7 +140,7 @@ def touch_table(tools, times):
         else:
             params[k] = [GRAB, tool.radius, tool.stiffness, 0.0]
         for step, t in enumerate(times):
-            p = _vec(f"touch[{k}].path({t:g})", tool.path(t))
+            p = vector3(f"touch[{k}].path({t:g})", tool.path(t))
             inactive = isinstance(tool, Grab) and not tool.is_active(t)
             positions[step, k] = np.full(3, 1e6) if inactive else p
     return params, positions
@@ -194,11 +194,11 @@ class HairInteraction:
     max_density: float | None = None
 
     def __post_init__(self):
-        _scalar("cell_size", self.cell_size, "m", inclusive=False)
-        _scalar("repulsion", self.repulsion, "m^2/s^2")
-        _scalar("friction", self.friction, "1/s")
+        real("cell_size", self.cell_size, "m", low=0.0, low_open=True)
+        real("repulsion", self.repulsion, "m^2/s^2", low=0.0)
+        real("friction", self.friction, "1/s", low=0.0)
         if self.max_density is not None:
-            _scalar("max_density", self.max_density, "kg/m^3", inclusive=False)
+            real("max_density", self.max_density, "kg/m^3", low=0.0, low_open=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -220,13 +220,13 @@ class StrandContact:
 
     def __post_init__(self):
         if self.radius is not None:
-            _scalar("radius", self.radius, "m", inclusive=False)
-        _scalar("friction", self.friction, "(Coulomb coefficient)")
+            real("radius", self.radius, "m", low=0.0, low_open=True)
+        real("friction", self.friction, "(Coulomb coefficient)", low=0.0)
         if not isinstance(self.self_contact, (bool, np.bool_)):
             raise ValueError(f"self_contact must be True or False, got {self.self_contact!r}")
         if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
                 or not 1 <= self.iterations <= 1000:
             raise ValueError(f"iterations must be an integer in [1, 1000], got {self.iterations!r}")
-        _scalar("tolerance", self.tolerance, "(relative)", inclusive=False)
+        real("tolerance", self.tolerance, "(relative)", low=0.0, low_open=True)
         if self.tolerance >= 1.0:
             raise ValueError(f"tolerance must be in (0, 1) (relative to the radius sum), got {self.tolerance!r}")

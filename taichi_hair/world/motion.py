@@ -24,6 +24,8 @@ import math
 
 import numpy as np
 
+from ..validation import choice, real, vector3
+
 INTERPOLATIONS = ("slerp", "linear", "step")
 EXTRAPOLATIONS = ("hold", "cycle")
 _ROTATION_TOL = 1e-6  # same tolerance as Simulator's check_rigid_transform
@@ -89,40 +91,6 @@ def smoothstep(u):
     return u * u * (3.0 - 2.0 * u)
 
 
-# ---- validation ------------------------------------------------------------------------------
-def _number(name, value, unit, *, low=None, high=None, low_open=False):
-    """float(value), or ValueError naming `name`, the allowed range and the value received."""
-    ok = (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-          and math.isfinite(value))
-    if ok and low is not None:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        bounds = []
-        if low is not None:
-            bounds.append(f"{'>' if low_open else '>='} {low:g}")
-        if high is not None:
-            bounds.append(f"<= {high:g}")
-        rng = (" " + " and ".join(bounds)) if bounds else ""
-        raise ValueError(f"{name} must be a finite number{rng} {unit}, got {value!r}")
-    return float(value)
-
-
-def _vector(name, value, unit, *, unit_length=False):
-    """Validated 3-vector as a tuple of floats (tuples keep the frozen dataclasses hashable and
-    comparable); normalised when unit_length."""
-    v = np.asarray(value, dtype=np.float64) if _is_numeric(value) else None
-    if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be a finite 3-vector [{unit}], got {value!r}")
-    if unit_length:
-        n = np.linalg.norm(v)
-        if n < 1e-12:
-            raise ValueError(f"{name} must be a non-zero 3-vector (it is normalised), got {value!r}")
-        v = v / n
-    return tuple(float(c) for c in v)
-
-
 def _is_numeric(value):
     try:
         np.asarray(value, dtype=np.float64)
@@ -155,11 +123,11 @@ class _Oscillation:
     ramp_s: float = 0.0
 
     def __post_init__(self):
-        _number("amplitude_deg", self.amplitude_deg, "degrees", low=0.0, high=180.0)
-        _number("frequency_hz", self.frequency_hz, "Hz", low=0.0, low_open=True)
-        _number("ramp_s", self.ramp_s, "s", low=0.0)
-        object.__setattr__(self, "axis", _vector("axis", self.axis, "1", unit_length=True))
-        object.__setattr__(self, "pivot", _vector("pivot", self.pivot, "m"))
+        real("amplitude_deg", self.amplitude_deg, "degrees", low=0.0, high=180.0)
+        real("frequency_hz", self.frequency_hz, "Hz", low=0.0, low_open=True)
+        real("ramp_s", self.ramp_s, "s", low=0.0)
+        object.__setattr__(self, "axis", tuple(vector3("axis", self.axis, "1", normalise=True).tolist()))
+        object.__setattr__(self, "pivot", tuple(vector3("pivot", self.pivot, "m").tolist()))
 
     def angle(self, t: float) -> float:
         """Signed rotation angle [rad] at time t [s]."""
@@ -199,12 +167,12 @@ class Turntable:
     ramp_s: float = 0.0
 
     def __post_init__(self):
-        _number("period_s", self.period_s, "s (non-zero)")
+        real("period_s", self.period_s, "s (non-zero)")
         if self.period_s == 0:
             raise ValueError(f"period_s must be a finite non-zero number of seconds, got {self.period_s!r}")
-        _number("ramp_s", self.ramp_s, "s", low=0.0)
-        object.__setattr__(self, "axis", _vector("axis", self.axis, "1", unit_length=True))
-        object.__setattr__(self, "pivot", _vector("pivot", self.pivot, "m"))
+        real("ramp_s", self.ramp_s, "s", low=0.0)
+        object.__setattr__(self, "axis", tuple(vector3("axis", self.axis, "1", normalise=True).tolist()))
+        object.__setattr__(self, "pivot", tuple(vector3("pivot", self.pivot, "m").tolist()))
 
     def angle(self, t: float) -> float:
         """Rotation angle [rad] at time t [s]."""
@@ -230,9 +198,9 @@ class Jerk:
     duration_s: float = 0.05
 
     def __post_init__(self):
-        _number("time_s", self.time_s, "s")
-        _number("duration_s", self.duration_s, "s", low=0.0, low_open=True)
-        object.__setattr__(self, "displacement", _vector("displacement", self.displacement, "m"))
+        real("time_s", self.time_s, "s")
+        real("duration_s", self.duration_s, "s", low=0.0, low_open=True)
+        object.__setattr__(self, "displacement", tuple(vector3("displacement", self.displacement, "m").tolist()))
 
     def __call__(self, t):
         u = (float(t) - self.time_s) / self.duration_s
@@ -296,10 +264,8 @@ class Keyframes:
         times = _keyframe_times(self.times)
         quats = _keyframe_quaternions(self.rotations, len(times))
         trans = _keyframe_translations(self.translations, len(times))
-        if self.interpolation not in INTERPOLATIONS:
-            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
-        if self.extrapolate not in EXTRAPOLATIONS:
-            raise ValueError(f"extrapolate must be one of {EXTRAPOLATIONS}, got {self.extrapolate!r}")
+        choice("interpolation", self.interpolation, INTERPOLATIONS)
+        choice("extrapolate", self.extrapolate, EXTRAPOLATIONS)
         if self.extrapolate == "cycle" and len(times) < 2:
             raise ValueError(f"extrapolate='cycle' needs at least 2 keyframes, got {len(times)}")
         for a in (times, quats, trans):

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
+from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, host_distance
 from ..rods.groom import Groom
 from ..rods.materials import Material, per_strand_materials
 from ..rods.modes import Integrator, Projection, Root, Strain
@@ -79,7 +79,7 @@ class ColliderUnion:
         self.colliders = tuple(colliders)
 
     def _distances(self, points):
-        return np.stack([_host_distance(c, points) for c in self.colliders])
+        return np.stack([host_distance(c, points) for c in self.colliders])
 
     def sample(self, points):
         points = np.asarray(points, dtype=np.float64)
@@ -89,25 +89,6 @@ class ColliderUnion:
         points = np.asarray(points, dtype=np.float64)
         return np.stack([(self.sample(points + h * e) - self.sample(points - h * e)) / (2 * h)
                          for e in np.eye(3)], axis=1)
-
-
-def _host_distance(c, p):
-    """Signed distance [M] of points p [M, 3] from one collider (the kernels' formulas)."""
-    if isinstance(c, MeshCollider):
-        return c.grid.sample(p)
-    kind, a, b, radius = c.packed()
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    if isinstance(c, Sphere):
-        return np.linalg.norm(p - a, axis=1) - radius
-    if isinstance(c, Ellipsoid):
-        q = p - a
-        k0 = np.linalg.norm(q / b, axis=1)
-        return k0 * (k0 - 1.0) / np.maximum(np.linalg.norm(q / b**2, axis=1), 1e-12)
-    if isinstance(c, Capsule):
-        ab = b - a
-        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-        return np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - radius
-    return (p - a) @ b
 
 
 INTEGRATORS = Integrator.names()
