@@ -175,7 +175,7 @@ def test_unused_stages_are_not_compiled():
     touch code and never compiles the interaction kernels; a full scene compiles them."""
     code = textwrap.dedent("""
         import json, warnings, numpy as np, taichi_hair as th
-        from taichi_hair.solver import step
+        from taichi_hair.solver.step import fused as step
         from taichi_hair.solver import interaction
         warnings.simplefilter("ignore")
         th.init(precision="float64")

@@ -284,7 +284,7 @@ def test_pin_code_compiles_only_when_pins_are_used():
     compiles one variant with it, and releasing and re-adding compiles nothing more."""
     code = textwrap.dedent("""
         import json, warnings, numpy as np, taichi_hair as th
-        from taichi_hair.solver import step
+        from taichi_hair.solver.step import fused as step
         warnings.simplefilter("ignore")
         th.init(precision="float64")
         groom = th.Groom.straight(length=0.1, n_nodes=11, roots=[[0, 0, 0.1]], directions=[[0, 0, 1]])

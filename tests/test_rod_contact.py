@@ -209,7 +209,7 @@ def test_strand_contact_leaves_a_margin_on_the_explicit_bound():
 
 def test_fused_contact_steps_match_the_staged_one():
     """Three drivers run the same passes and give the same positions: many steps per launch on
-    one thread (a small scene), a launch per step (step.advance_with_strand_contact, forced by
+    one thread (a small scene), a launch per step (step.contact.advance_with_strand_contact, forced by
     small_contact_nodes = 0), and a launch per stage and per contact pass (with timers)."""
     import contextlib
     groom = crossing_ropes(n=21)
@@ -241,16 +241,17 @@ def test_strand_contact_code_compiles_only_when_a_scene_asks_for_it():
     import textwrap
     code = textwrap.dedent("""
         import json, warnings, numpy as np, taichi_hair as th
-        from taichi_hair.solver import step, strand_contact
+        from taichi_hair.solver import strand_contact
+        from taichi_hair.solver.step import contact, fused
         warnings.simplefilter("ignore")
         th.init(precision="float64")
         groom = th.Groom.straight(length=0.1, n_nodes=11, roots=[[0, 0, 0.1], [0.01, 0, 0.1]],
                                   directions=[[0, 0, 1], [0, 0, 1]])
         def compiled():
-            return {"contact_step": len(step.advance_with_strand_contact._primal.mapper.mapping)
-                                    + len(step.advance_small_with_strand_contact._primal.mapper.mapping),
+            return {"contact_step": len(contact.advance_with_strand_contact._primal.mapper.mapping)
+                                    + len(contact.advance_small_with_strand_contact._primal.mapper.mapping),
                     "contact_pass": len(strand_contact._contact_pass._primal.mapper.mapping),
-                    "clips": any(v["clips"] for v in step.compiled_variants())}
+                    "clips": any(v["clips"] for v in fused.compiled_variants())}
         th.Simulator(groom, th.Material()).step(3)
         bare = compiled()
         th.Simulator(groom, th.Material(), strand_contact=th.StrandContact()).step(3)
