@@ -16,7 +16,7 @@ import json
 import sys
 
 from .. import runtime
-from ..hair.sagfree import add_report_parser as add_sagfree_parser
+from .sagfree_report import add_report_parser as add_sagfree_parser
 from ..validation import cli_real, one_line_parser_class
 from ..world.scene import PROJECTIONS
 from . import cluster

@@ -68,11 +68,12 @@ import numpy as np
 
 from ..rods import arrays
 from ..rods.groom import Groom
-from ..rods.materials import Material, per_strand_materials, stiffness_table
+from ..rods.materials import per_strand_materials, stiffness_table
 from ..rods.rod import first_node
 from ..world.scene import ColliderUnion, Head
 from ..runtime import precision
 from ..rods.modes import Root, Twist
+from ..validation import integer, real, vector3
 
 ANGLE_TOLERANCE = 1e-7  # [rad]: the twist update no longer moves the angles
 # a smallest eigenvalue below -this x (nodal weight / segment length) is a saddle, not a minimum
@@ -344,12 +345,7 @@ def _check_inputs(groom, material, gravity, head, twist, regularization, max_tur
     if not isinstance(groom, Groom):
         raise ValueError(f"groom must be a taichi_hair.Groom, got {type(groom).__name__}")
     per_strand_materials(material, groom.n_strands)  # raises naming `material`
-    try:
-        g = np.asarray(gravity, dtype=np.float64)
-    except (TypeError, ValueError):
-        g = None
-    if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
-        raise ValueError(f"gravity must be a finite 3-vector in m/s^2, got {gravity!r}")
+    g = vector3("gravity", gravity, "m/s^2")
     if head is not None and not isinstance(head, Head):
         raise ValueError(f"head must be a taichi_hair.Head or None, got {type(head).__name__}")
     Twist.parse("twist", twist)
@@ -358,17 +354,11 @@ def _check_inputs(groom, material, gravity, head, twist, regularization, max_tur
         raise ValueError(f"root must be 'clamped' for sag_free, got {root!r}: a pinned root is a "
                          "hinge, which cannot carry the moment of the strand's weight, so no rest "
                          "shape holds a pinned strand up")
-    for name, value, low, high, unit in (
-            ("regularization", regularization, 0.0, math.inf, ""),
-            ("max_turning_deg", max_turning_deg, 0.0, 180.0, "degrees"),
-            ("max_relative_residual", max_relative_residual, 0.0, math.inf, "")):
-        if not (_is_number(value) and low < value < high):
-            bound = f" and < {high:g}" if high < math.inf else ""
-            raise ValueError(f"{name} must be a finite number > {low:g}{bound} {unit}, got {value!r}".replace(" ,", ","))
-    if not (_is_number(contact_tolerance) and contact_tolerance >= 0):
-        raise ValueError(f"contact_tolerance must be a finite number >= 0 m, got {contact_tolerance!r}")
-    if not (isinstance(iterations, int) and not isinstance(iterations, bool) and iterations >= 1):
-        raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+    real("regularization", regularization, low=0.0, low_open=True)
+    real("max_turning_deg", max_turning_deg, "degrees", low=0.0, high=180.0, low_open=True, high_open=True)
+    real("max_relative_residual", max_relative_residual, low=0.0, low_open=True)
+    real("contact_tolerance", contact_tolerance, "m", low=0.0)
+    integer("iterations", iterations, low=1)
     return g
 
 
@@ -388,11 +378,6 @@ def _strand_mask(strands, count):
     mask = np.zeros(count, dtype=bool)
     mask[picked] = True
     return mask
-
-
-def _is_number(value):
-    return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-            and math.isfinite(value))
 
 
 # ---- the linear map wbar -> elastic force -----------------------------------------------------
@@ -716,93 +701,3 @@ def _report(groom, wbar, wbar0, clipped, torsion, shape, fallback, chosen, resid
         contact_nodes=np.array([len(c[0]) for c in contacts]), contact_force=contact_force,
         torsion_stable=torsion, shape_stable=shape, solved=chosen,
         twist=twist, iterations=rounds, converged=converged, seconds=seconds)
-
-
-# ---- the drift experiment (`taichi-hair report sagfree`) -----------------------------------------
-
-def mixed_head_groom(n_guides: int = 200, n_nodes: int = 32, seed: int = 0):
-    """(Head.default(), Groom): n_guides guides on the default head, a third each straight,
-    wavy and curly, lengths 10-40 cm (0.25 m +- 60 %), combed back and groomed around the head."""
-    from .roots import scalp_groom
-    head = Head.default()
-    field = head.distance_field()
-    counts = [n_guides // 3 + (k < n_guides % 3) for k in range(3)]
-    strands = []
-    for k, (style, count) in enumerate(zip(("straight", "wavy", "curly"), counts)):
-        if count:
-            part = scalp_groom(head.model, count, style=style, length=0.25, length_variation=0.6,
-                               n_nodes=n_nodes, collider=field, seed=seed + k)
-            strands += [part.strand(s) for s in range(part.n_strands)]
-    return head, Groom.from_polylines(strands)
-
-
-def drift_experiment(n_guides: int = 200, seconds: float = 5.0, drag: float = 3e-4,
-                     n_nodes: int = 32, dt: float = 1e-3, progress: bool = False) -> dict:
-    """Simulate `mixed_head_groom` for `seconds` under gravity with `drag` [N s/m per m], with
-    and without the sag-free start; node drift [m] from the groomed positions (all nodes, in
-    head coordinates: the head does not move) and the solve's cost. Twist "none" (the robust
-    choice for sag-free round hair, see `sag_free`); rest turning angles up to 160 degrees."""
-    from ..world.scene import Scene
-    from ..solver.simulator import Simulator
-    head, groom = mixed_head_groom(n_guides, n_nodes)
-    material = Material()
-    fixed, report = sag_free(groom, material, head=head, twist="none", max_turning_deg=160.0)
-    held_strands = report.solved & ~report.fell_back & ~report.clipped
-    rows = {}
-    for label, start in (("groomed rest shape", groom), ("sag-free rest shape", fixed)):
-        sim = Simulator.from_scene(Scene(groom=start, head=head, material=material, drag=drag,
-                                         twist="none"), dt=dt)
-        start_x = sim.positions()  # after initial contacts are resolved
-        began = time.perf_counter()
-        sim.run(seconds, progress=progress)
-        wall = time.perf_counter() - began
-        drift = np.linalg.norm(sim.positions() - groom.positions, axis=2)
-        mask = np.arange(groom.max_nodes)[None, :] < groom.node_counts[:, None]
-        held = mask & held_strands[:, None]
-        rows[label] = {"mean_drift_m": float(drift[mask].mean()), "max_drift_m": float(drift[mask].max()),
-                       "held_mean_drift_m": float(drift[held].mean()) if held.any() else math.nan,
-                       "held_max_drift_m": float(drift[held].max()) if held.any() else math.nan,
-                       "start_offset_m": float(np.linalg.norm(start_x - groom.positions, axis=2)[mask].max()),
-                       "wall_s": wall, "substeps": sim.substeps}
-    return {"n_guides": groom.n_strands, "n_held": int(held_strands.sum()),
-            "n_nodes": n_nodes, "seconds": seconds, "drag": drag, "dt": dt,
-            "solve_s": report.seconds, "solve_ms_per_guide": 1e3 * report.seconds / groom.n_strands,
-            "summary": report.summary(), "unreachable": report.n_unreachable, "rows": rows}
-
-
-def report_main(args) -> int:
-    """`taichi-hair report sagfree`: the drift table."""
-    from .. import runtime
-    runtime.init(precision=args.precision, arch=args.arch)
-    guides, seconds = (30, 1.0) if args.quick else (args.guides, args.seconds)
-    result = drift_experiment(guides, seconds, args.drag, progress=not args.quick)
-    print(result["summary"])
-    print(f"\n{result['n_guides']} guides x {result['n_nodes']} nodes on the default head, "
-          f"{seconds:g} s under gravity, drag {args.drag:g}, dt {result['dt']:g} s ({args.precision})")
-    print(f"{'':<22}{'all strands':>32}{'the ' + str(result['n_held']) + ' held':>32}")
-    print(f"{'start':<22}{'mean drift [mm]':>16}{'max drift [mm]':>16}{'mean drift [mm]':>16}"
-          f"{'max drift [mm]':>16}{'sim wall [s]':>14}")
-    for label, row in result["rows"].items():
-        print(f"{label:<22}{1e3 * row['mean_drift_m']:>16.3f}{1e3 * row['max_drift_m']:>16.3f}"
-              f"{1e3 * row['held_mean_drift_m']:>16.3f}{1e3 * row['held_max_drift_m']:>16.3f}"
-              f"{row['wall_s']:>14.1f}")
-    print("held: strands whose sag-free balance is a minimum (the others keep the groomed rest "
-          "shape: their balance is a saddle, see th.sag_free)")
-    print(f"solve: {result['solve_s']:.2f} s ({result['solve_ms_per_guide']:.1f} ms per guide)")
-    return 0
-
-
-def add_report_parser(sub) -> None:
-    """`report sagfree` on an argparse subparsers object."""
-    from ..validation import cli_int, cli_real
-    p = sub.add_parser("sagfree", help="node drift under gravity with and without the sag-free start")
-    p.add_argument("--quick", action="store_true", help="30 guides, 1 s")
-    p.add_argument("--guides", type=cli_int("--guides", 1, 100_000), default=200)
-    p.add_argument("--seconds", type=cli_real("--seconds", 0.0, 1000.0, unit="s"), default=5.0)
-    p.add_argument("--drag", type=cli_real("--drag", 0.0, 1.0, low_open=False, unit="N s/m per m"), default=3e-4,
-                   help="air drag [N s/m per m of strand]")
-    p.add_argument("--precision", default="float64", choices=["float32", "float64"],
-                   help="float64 (default): in float32 the position-based velocities of the tiny "
-                        "substeps a scalp groom needs random-walk weakly held strands by millimetres")
-    p.add_argument("--arch", default="cpu")
-    p.set_defaults(func=report_main)

@@ -13,7 +13,6 @@ takes them; the solver's stage plan is derived from them. The older flat keyword
 (`Simulator(twist="kmoch", drag=5e-4)`) build these objects (`split_keywords`).
 """
 
-import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -21,7 +20,7 @@ import numpy as np
 from .forces import Grab, HairInteraction, Hand, StrandContact, Wind
 from ..rods.materials import per_strand_materials
 from ..rods.modes import Integrator, Projection, Root, Strain, Twist
-from ..validation import is_integer, is_real
+from ..validation import integer, real, vector3
 
 DEFAULT_PROJECTION_TOL = 1e-6  # max |C_j| / |ebar_j|^2: positions are float64 in both precisions
 DEFAULT_PROJECTION_ITERATIONS = 100
@@ -53,38 +52,10 @@ ROTATION_KMOCH_REFUSAL = (
     "gain); use twist='quasistatic' for the rotation measure (docs/model.md, \"Strains from rotations\")")
 
 
-def _real(name, value, unit, low=0.0, high=math.inf, low_open=True, high_open=True):
-    ok = is_real(value) and math.isfinite(value) and (value > low if low_open else value >= low) and (
-        value < high if high_open else value <= high)
-    if not ok:
-        lower = f"{'>' if low_open else '>='} {low:g}"
-        upper = "" if high == math.inf else f" and {'<' if high_open else '<='} {high:g}"
-        raise ValueError(f"{name} must be a finite number {lower}{upper}{' ' + unit if unit else ''}, "
-                         f"got {value!r}")
-    return float(value)
-
-
-def _count(name, value):
-    if not (is_integer(value) and value >= 1):
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
-
-
 def _flag(name, value):
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name} must be True or False, got {value!r}")
     return bool(value)
-
-
-def finite_vector3(name, value, unit=""):
-    """`value` as a float64 [3] array, or ValueError naming `name`."""
-    try:
-        v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        v = None
-    if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be a finite 3-vector{' in ' + unit if unit else ''}, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,14 +112,16 @@ class SolverOptions:
         put("extensible", _flag("extensible", self.extensible))
         put("strict", _flag("strict", self.strict))
         for name in ("projection_iterations", "twist_iterations", "max_substeps"):
-            put(name, _count(name, getattr(self, name)))
+            put(name, integer(name, getattr(self, name), low=1))
         if self.projection_tol is not None:
-            put("projection_tol", _real("projection_tol", self.projection_tol, "", high=1.0))
+            put("projection_tol", real("projection_tol", self.projection_tol, low=0.0, high=1.0, low_open=True,
+                                       high_open=True))
         if self.twist_tol is not None:
-            put("twist_tol", _real("twist_tol", self.twist_tol, ""))
+            put("twist_tol", real("twist_tol", self.twist_tol, low=0.0, low_open=True))
         if self.stability_factor is not None:
-            put("stability_factor", _real("stability_factor", self.stability_factor, "", high=2.0))
-        put("max_speed", _real("max_speed", self.max_speed, "m/s"))
+            put("stability_factor", real("stability_factor", self.stability_factor, low=0.0, high=2.0,
+                                         low_open=True, high_open=True))
+        put("max_speed", real("max_speed", self.max_speed, "m/s", low=0.0, low_open=True))
         if self.hair_interaction is not None and not isinstance(self.hair_interaction, HairInteraction):
             raise ValueError(f"hair_interaction must be a HairInteraction or None, got "
                              f"{type(self.hair_interaction).__name__}")
@@ -214,11 +187,11 @@ class Environment:
 
     def __post_init__(self):
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731 (frozen)
-        put("gravity", tuple(float(g) for g in finite_vector3("gravity", self.gravity, "m/s^2")))
-        put("drag", _real("drag", self.drag, "N s/m per metre", low_open=False))
+        put("gravity", tuple(float(g) for g in vector3("gravity", self.gravity, "m/s^2")))
+        put("drag", real("drag", self.drag, "N s/m per metre", low=0.0))
         if self.wind is not None and not isinstance(self.wind, Wind):
             try:
-                put("wind", tuple(float(w) for w in finite_vector3("wind", self.wind, "m/s")))
+                put("wind", tuple(float(w) for w in vector3("wind", self.wind, "m/s")))
             except ValueError:
                 raise ValueError(f"wind must be a Wind or a finite 3-vector in m/s, got {self.wind!r}") from None
         if self.motion is not None and not callable(self.motion):
