@@ -42,6 +42,7 @@ def shake(t):
     return rotation_matrix([0, 0, 1], np.radians(60) * np.sin(2 * np.pi * 3.0 * t)), np.zeros(3)
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_violent_shake_never_enters_the_head_and_roots_follow():
     groom = ellipsoid_groom(200)
     head = th.Head.ellipsoid(radii=tuple(RADII), margin=0.002, friction=0.3)
@@ -77,6 +78,7 @@ def hang_and_measure(interaction, seconds=1.2):
     return float(local.mean()), voxels
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_hair_interaction_keeps_volume():
     off = hang_and_measure(None)
     on = hang_and_measure(th.HairInteraction(cell_size=0.02, repulsion=2.0, friction=5.0))
@@ -102,6 +104,7 @@ def tip_offsets(**scene_options):
     return np.array(samples[20:])  # after the first 0.5 s
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_wind_deflects_hair_downwind_more_at_higher_speed():
     gentle = tip_offsets(wind=(2.0, 0.0, 0.0), drag=1e-5)
     strong = tip_offsets(wind=(5.0, 0.0, 0.0), drag=1e-5)
@@ -136,6 +139,7 @@ def hand_path(t):
     return np.array([0.0, -0.15 + 0.5 * t, -0.15])
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_hand_moves_the_hair_it_touches_and_no_other():
     groom = hanging_curtain()
     baseline = quiet(lambda: th.Simulator(groom, th.Material(), drag=5e-4))
@@ -220,6 +224,7 @@ def test_scene_validation_names_the_parameter():
         th.HairInteraction(cell_size=0.0)
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_default_head_mesh_keeps_hair_out_while_shaking():
     """The mesh head (distance grid) against the exact distance to its triangles."""
     from taichi_hair.world.motion import Shake

@@ -122,6 +122,7 @@ def test_bsdf_matches_mitsuba(material):
     assert err.max() < 0.05 and err.mean() < 0.01, (err.max(), err.mean())
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_images_match_mitsuba():
     """Same strands, camera, lights and parameters rendered by Mitsuba (single scattering,
     max_depth 2) and by us (with shadows): mean hair colour within Delta E 3, and on the arc

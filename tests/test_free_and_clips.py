@@ -65,6 +65,7 @@ def test_free_root_forces_are_the_energy_gradient_on_a_tight_elliptic_curl():
     assert central_difference_error(sim, list(range(16))) < 1e-6
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_clip_holding_twist_forces_include_its_holonomy_term():
     """With a clip holding edge 8's material frame in space (turned by 1 rad), the energy's
     gradient has the term dE/dtheta^8 grad Psi^8; without it the check fails by ~30 %."""

@@ -182,6 +182,7 @@ def test_block_solver_stays_accurate_on_a_long_fine_bent_chain():
     assert error < 1e-8
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 @pytest.mark.parametrize("n_nodes, segment", [(201, 1e-3), (101, 4e-4)])
 def test_long_fine_strand_falls_with_the_implicit_step(n_nodes, segment):
     """The two cases that failed at their first step fall for 0.1 s as the explicit step has
@@ -207,6 +208,7 @@ def test_long_fine_strand_falls_with_the_implicit_step(n_nodes, segment):
     assert error < 0.05
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 @pytest.mark.parametrize("stiffness", [10.0, 1000.0])
 def test_stiff_grab_swings_a_strand_under_the_implicit_step(stiffness):
     """A grab (radius 4 mm: one node, 5 mm segments) takes a hanging strand's middle node round
@@ -240,6 +242,7 @@ def test_stiff_grab_swings_a_strand_under_the_implicit_step(stiffness):
     assert lag < 4e-3
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_real_hair_cantilever_first_mode_at_one_millisecond():
     """A human hair (10 cm, 40 segments, no gravity, no damping set) started in its first mode:
     frequency within 0.5 % of the beam formula at dt = 1 ms and, as the step's only damping,
@@ -309,6 +312,7 @@ def test_frozen_angles_on_elliptic_strands_are_refused_by_the_implicit_step():
     th.Simulator(groom, th.Material(ellipticity=1.5), twist="none", integrator="explicit")
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_implicit_cantilever_settles_on_the_elastica_at_large_steps():
     material = th.Material(**BEAM)
     ei, rho_a = material.bending_stiffness[0], material.linear_density
@@ -326,6 +330,7 @@ def test_implicit_cantilever_settles_on_the_elastica_at_large_steps():
     assert max(errors.values()) < 0.001  # the explicit step's bound at 50 segments (test_step)
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_implicit_pendulum_keeps_its_swing_and_period():
     sim, period = pendulum(integrator="implicit")
     times, tip = [], []
@@ -385,6 +390,7 @@ def test_stiff_strand_runs_one_step_past_the_explicit_bound():
     assert max(energies) <= energies[0] + 1e-9 * abs(energies[0])
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_tight_elliptic_curls_on_a_shaking_head_stay_out_of_it():
     radius = 0.1
     roots = radius * np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [-0.6, 0.0, 0.8]])

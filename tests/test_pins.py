@@ -328,6 +328,7 @@ def test_staged_and_fused_steps_agree_with_pins_and_a_pinned_root():
         assert np.abs(fused - staged).max() < 1e-12
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_pinned_root_reference_is_parallel_transported_in_time():
     """Drive the pinned root edge once round a cone of half-angle alpha (node 1 held by a
     moving pin): a reference director parallel-transported in time comes back turned about the

@@ -47,6 +47,7 @@ def _wind_sim(scene):
         return Simulator.from_scene(scene, dt=Shot().frame_dt)
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_step_grouping_does_not_change_wind_straight(wind_scene, tmp_path):
     """sim.step(21) twice == sim.step(42) == a sim stepped 21, checkpointed, and a fresh sim
     loading it stepped 21: gusty turbulent wind, the head's distance field."""

@@ -70,6 +70,7 @@ def crossing_ropes(n=31, span=0.3):
     return th.Groom.from_polylines(np.stack([lower, upper]))
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_crossed_ropes_pressed_together_never_interpenetrate():
     """Two sagging ropes at right angles, each pinned at both ends; the upper one's pins are
     lowered 4 cm, so it presses down on the lower one. Every 50 steps the closest segment pair
@@ -101,6 +102,7 @@ def coil(radius=0.03, pitch=0.014, turns=3.0, n=61):
     return th.Groom.from_polylines(x[None])
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 @pytest.mark.parametrize("contact", [True, False])
 def test_coil_dropped_on_a_floor_does_not_pass_through_itself(contact):
     """A loose helix of 3 turns (pitch 14 mm, cord 5 mm thick: 4 mm between turns) falls onto a
@@ -126,6 +128,7 @@ def test_coil_dropped_on_a_floor_does_not_pass_through_itself(contact):
         assert min(closest) < 0.8 * 2 * cord.radius
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_frictionless_collision_creates_no_energy_and_keeps_momentum():
     """No gravity, no drag, no friction: a straight free strand thrown at 1 m/s across another
     at rest. Contact is inelastic along its normal, so the total energy can only fall; the
@@ -155,6 +158,7 @@ def test_frictionless_collision_creates_no_energy_and_keeps_momentum():
     assert np.abs(momentum - momentum0).max() < 1e-9 * np.abs(momentum0).max()
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_friction_holds_a_strand_resting_across_another():
     """A short strand lying across a taut strand at a slant is pushed along the taut one by a
     sideways force below friction x the normal force: with friction 0.6 it holds, without
@@ -207,6 +211,7 @@ def test_strand_contact_leaves_a_margin_on_the_explicit_bound():
     assert named.stable_dt == pytest.approx(plain.stable_dt, rel=1e-12)
 
 
+@pytest.mark.slow  # a long run: 15-60 s on 2 cores
 def test_fused_contact_steps_match_the_staged_one():
     """Three drivers run the same passes and give the same positions: many steps per launch on
     one thread (a small scene), a launch per step (step.contact.advance_with_strand_contact, forced by
