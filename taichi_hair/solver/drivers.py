@@ -56,10 +56,6 @@ class StagedDriver:
                    self.interaction.stage if self.interaction is not None else None, pins,
                    self.contact.resolve if self.contact is not None else None)
 
-    def timed(self, timers) -> "StagedDriver":
-        """This driver with every stage timed by `timers`."""
-        return StagedDriver(self.bundles, self.plan, self.control, self.interaction, self.contact, timers)
-
 
 class StrandContactDriver:
     """Strand-strand contact (`grid`: a strand_contact.ContactGrid, `settings`: its StrandContact):
