@@ -66,8 +66,9 @@ class RodModel:
 
 # RodState.history's slots: the friction totals and the collider queries of the step's
 # projection (every integrator), then the implicit step's history
-(FRICTION_SHIFT, FRICTION_PUSH, CONTACT_QUERY, CONTACT_CLEARANCE, HIST_V, HIST_DX, HIST_ELASTIC,
- HIST_CHANGE) = range(8)
+(FRICTION_SHIFT, FRICTION_PUSH, CONTACT_QUERY, CONTACT_CLEARANCE, CONTACT_NORMAL, HIST_V, HIST_DX,
+ HIST_ELASTIC, HIST_CHANGE) = range(9)
+CONTACT_SLOTS = CONTACT_NORMAL + 1  # the slots every integrator has
 
 # columns of RodState.counters: running maxima / counts since the last stats reset, and the
 # first step at which a strand went bad in the last launch (-1: none)
@@ -101,13 +102,17 @@ class RodState:
     strand_scalar: object  # [S] float
     counters: object  # [S, len(COUNTERS)] int, see COUNTERS
     residuals: object  # [S, 2] float: projection and twist residual maxima
-    # history [S, N, 8] vec3 with the implicit step, [S, N, 4] without (one array: Taichi caps
+    # history [S, N, 9] vec3 with the implicit step, [S, N, 5] without (one array: Taichi caps
     # a kernel's argument count): [..., FRICTION_SHIFT] the friction shift given to the node so
     # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m]
     # (collisions.contact_with_friction), [..., CONTACT_QUERY]
     # the node's step displacement dx [m] when the colliders were last queried for it and
-    # [..., CONTACT_CLEARANCE] (its smallest distance beyond a collider's margin then [m], 1 if
-    # this contact pass queries it) (collisions.strand_collide); the implicit step's history: [..., HIST_V] the
+    # [..., CONTACT_CLEARANCE] (its smallest distance beyond the margins of the analytic shapes and
+    # hands, the groups this pass queries it for as bits, the same for the distance grid [m])
+    # (collisions.plan_queries), [..., CONTACT_NORMAL] the outward
+    # normal [1, world axes] of the collider that last pushed the node this step, zero if none or
+    # released (the projection holds the node on that surface: projection.inverse_mass_times);
+    # the implicit step's history: [..., HIST_V] the
     # velocities one step back [m/s], [..., HIST_DX] the last step's displacements [m],
     # [..., HIST_ELASTIC] the last step's elastic forces [N] (NaN: none yet), [..., HIST_CHANGE]
     # this step's elastic forces minus those [N]
@@ -168,7 +173,7 @@ def allocate_state(groom: Groom, root_t: np.ndarray, root_u: np.ndarray, implici
         strand_scalar=arrays.scalars((s_count,)),
         counters=arrays.ints((s_count, len(COUNTERS)), 0),
         residuals=arrays.scalars((s_count, 2)),
-        history=arrays.vectors(3, (s_count, n_max, 8 if implicit else 4)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
+        history=arrays.vectors(3, (s_count, n_max, HIST_CHANGE + 1 if implicit else CONTACT_SLOTS)), tension=arrays.scalars(edges if implicit or extensible else (1, 1)),
         blocks=arrays.matrices(arrays.BLOCK, nodes + (3,), ti.f64),
         block_rhs=arrays.vectors(arrays.BLOCK, nodes, dtype=ti.f64),
     )

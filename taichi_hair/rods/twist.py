@@ -13,7 +13,8 @@ Two modes (docs/model.md, "Twist"):
   or the held root edge), so the step is a descent direction. A backtracking line search on the
   energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases every iteration, so
   the iteration cannot cycle between branches, and near a minimum it is exact Newton
-  (quadratic). It ends converged (scaled residual below tol), stalled (no step changes theta
+  (quadratic); an exact Newton step that turns no angle by more than WHOLE_NEWTON_STEP is taken
+  whole, without the line search's energy evaluations (the quasi-static case in a time step). It ends converged (scaled residual below tol), stalled (no step changes theta
   in this precision) or at the iteration cap; callers count stalls and refuse caps.
 - `kmoch`: Kmoch et al.'s rule for elliptic hair: m1 (the major axis, soft bending) follows the
   curvature binormals at the edge's two end nodes (their |kb|^2-weighted mean direction, taken
@@ -243,6 +244,29 @@ def ldl_solve(s, lo, hi, diag: ti.template(), upper: ti.template(), rhs: ti.temp
     return positive, decrement
 
 
+# An exact Newton step (positive definite Hessian) that turns no angle by more than this [rad] is
+# taken whole, without the line search's energies: the energy is a trigonometric polynomial in
+# the angles, so its quadratic model's error over the step is of order step^3 (relative to the
+# curvature, below 1e-6 here) and Armijo's test, which asks for 1e-4 of the predicted decrease,
+# would pass at alpha = 1. A quasi-static twist moves by far less than this per time step.
+WHOLE_NEWTON_STEP = 1e-2
+
+
+@ti.func
+def newton_step_within(s, lo, hi, st: ti.template()):
+    """theta <- theta - step (st.diag, solved by ldl_solve) if no angle moves by more than
+    WHOLE_NEWTON_STEP; returns the largest |step| [rad] taken, 0 if none (theta unchanged)."""
+    largest = 0.0
+    for j in range(lo, hi + 1):
+        largest = ti.max(largest, ti.abs(st.diag[s, j]))
+    moved = 0.0
+    if largest <= WHOLE_NEWTON_STEP:
+        for j in range(lo, hi + 1):
+            st.theta[s, j] -= st.diag[s, j]
+        moved = largest
+    return moved
+
+
 @ti.func
 def line_search(s, first, lo, hi, e0, decrement, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
     """theta <- theta - alpha step with the largest alpha = a0 2^-m (a0 caps every angle's move
@@ -301,12 +325,17 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
         if it >= max_iterations:
             status = CAPPED
             break
-        e0 = theta_energy(s, n, first, rotation, md, st, k)
         positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
+        exact = positive
         if not positive:  # indefinite: a descent direction from the clamped bending diagonal
             assemble_newton(s, n, first, lo, 1, rotation, md, st, k, clips, clip)
             positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
-        moved = line_search(s, first, lo, n - 2, e0, decrement, rotation, md, st, k)
+        moved = 0.0
+        if exact:
+            moved = newton_step_within(s, lo, n - 2, st)
+        if moved == 0.0:
+            moved = line_search(s, first, lo, n - 2, theta_energy(s, n, first, rotation, md, st, k), decrement,
+                                rotation, md, st, k)
         it += 1
         largest_angle = 0.0
         for j in range(lo, n - 1):

@@ -5,7 +5,7 @@ only the nodes that can have reached a collider since their last query."""
 import taichi as ti
 
 from ..rods.arrays import mat_block, point, step_displacement, vec3, vec_block
-from ..rods.state import CONTACT_CLEARANCE, CONTACT_QUERY, FRICTION_PUSH, FRICTION_SHIFT
+from ..rods.state import CONTACT_CLEARANCE, CONTACT_NORMAL, CONTACT_QUERY, FRICTION_PUSH, FRICTION_SHIFT
 from ..rods.linalg import rotate_rows, unrotate_rows
 from ..world.colliders import analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
@@ -70,57 +70,112 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
 # reached a margin, and a contact pass skips it
 DISTANCE_SLOPE = 2.0
 UNQUERIED = -1.0  # a clearance that makes the next pass query the node
+# Clearances are kept for two groups of colliders (CONTACT_CLEARANCE.x and .z) so that a node near
+# one is not queried against the other: the analytic shapes and the hands (SHAPES), and the
+# distance grid (GRID), whose queries cost the most; a pass's queries are flagged by bit in .y
+SHAPES, GRID = 1, 2
 
 
 @ti.func
-def strand_reset_friction(s, st: ti.template()):
-    """A new step's contact state for strand s: no friction shift, no push yet, every node to
-    be queried."""
+def strand_reset_friction(s, st: ti.template(), travel=-1.0):
+    """A new step's contact state for strand s: no friction shift, no push nor contact normal
+    yet. The clearances found by earlier queries (plan_queries) stand, less DISTANCE_SLOPE x
+    travel [m], a bound on how far the colliders have moved since (collider_travel); travel < 0
+    (the default) has every node queried afresh."""
     for i in range(st.history.shape[1]):
         st.history[s, i, FRICTION_SHIFT] = vec3(0.0)
         st.history[s, i, FRICTION_PUSH] = vec3(0.0)
-        st.history[s, i, CONTACT_CLEARANCE] = vec3(UNQUERIED, 0.0, 0.0)
+        st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+        clearance = vec3(UNQUERIED, 0.0, UNQUERIED)
+        if travel >= 0.0:
+            clearance = st.history[s, i, CONTACT_CLEARANCE] - vec3(DISTANCE_SLOPE * travel, 0.0, DISTANCE_SLOPE * travel)
+            clearance.y = 0.0
+        st.history[s, i, CONTACT_CLEARANCE] = clearance
 
 
 @ti.func
-def plan_queries(s, n, st: ti.template()):
-    """Which nodes of strand s this contact pass queries (CONTACT_CLEARANCE.y = 1): those that may
-    have reached a collider's margin since their last query (DISTANCE_SLOPE). Their clearance
-    starts afresh and each query lowers it (note_clearance)."""
+def collider_travel(s, k, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
+    """A bound [m] on how far any collider surface near strand s moves during step k, relative to
+    the world: the head's move |t' - t| + |R' - R|_F r at the strand's nodes (r: the farthest
+    node's distance from the head's origin at the step's start; the projection's moves within the
+    step change r by far less than a clearance) and every hand's move. 0 for a still head and no
+    hands."""
+    now, prev = head_poses(k, fl)
+    head = ti.static(dr.head)
+    turn = 0.0
+    for r in ti.static(range(3)):
+        turn += (head[now, r] - head[prev, r]).norm_sqr()
+    reach = 0.0
+    for i in range(md.node_count[s]):
+        reach = ti.max(reach, (point(st.x, s, i) - head[prev, 3]).norm_sqr())
+    travel = (head[now, 3] - head[prev, 3]).norm() + ti.sqrt(turn * reach)
+    if ti.static(fl.touch):
+        for t in range(dr.tools.shape[0]):
+            if ti.cast(dr.tools[t][0], ti.i32) == HAND:
+                travel = ti.max(travel, (dr.tool_points[k + 1, t] - dr.tool_points[k, t]).norm())
+    return travel
+
+
+@ti.func
+def plan_queries(s, n, n_analytic, st: ti.template()):
+    """Which nodes of strand s this contact pass queries, per group of colliders (SHAPES, GRID;
+    bits of CONTACT_CLEARANCE.y): those that may have reached a margin of that group since their
+    last query (DISTANCE_SLOPE), measured from the position then (CONTACT_QUERY), which holds
+    across steps and any move of the node (a rollback, set_positions); and a node held on a
+    surface (in_contact), in that surface's group, in every pass. A queried node's query position
+    moves to where it is, its other group's clearance lowered to stay valid from there; the
+    queried group's clearance starts afresh and each query lowers it (note_clearance)."""
     for i in range(n):
-        clearance = st.history[s, i, CONTACT_CLEARANCE].x
-        moved = (st.dx[s, i] - st.history[s, i, CONTACT_QUERY]).norm()
-        if clearance > DISTANCE_SLOPE * moved:
-            st.history[s, i, CONTACT_CLEARANCE] = vec3(clearance, 0.0, 0.0)
+        c = st.history[s, i, CONTACT_CLEARANCE]
+        reach = DISTANCE_SLOPE * (point(st.x, s, i) - st.history[s, i, CONTACT_QUERY]).norm()
+        holder = held_by(s, i, st)
+        on_grid = holder == n_analytic + 1
+        shapes = not (c.x > reach) or (holder != 0 and not on_grid)  # written so that NaN queries
+        grid = not (c.z > reach) or on_grid
+        if shapes or grid:
+            c = vec3(c.x - reach, 0.0, c.z - reach)
+            if shapes:
+                c.x = ti.math.inf
+                c.y += SHAPES
+            if grid:
+                c.z = ti.math.inf
+                c.y += GRID
+            st.history[s, i, CONTACT_QUERY] = point(st.x, s, i)
         else:
-            st.history[s, i, CONTACT_CLEARANCE] = vec3(ti.math.inf, 1.0, 0.0)
-            st.history[s, i, CONTACT_QUERY] = st.dx[s, i]
+            c.y = 0.0
+        st.history[s, i, CONTACT_CLEARANCE] = c
 
 
 @ti.func
-def queried(s, i, springs: ti.template(), st: ti.template()):
-    """Whether this contact pass queries node i (always in the implicit correction's springs mode)."""
+def queried(s, i, group, springs: ti.template(), st: ti.template()):
+    """Whether this contact pass queries node i against the colliders of `group` (SHAPES or GRID;
+    always in the implicit correction's springs mode)."""
     result = True
     if ti.static(not springs):
-        result = st.history[s, i, CONTACT_CLEARANCE].y > 0.5
+        result = (ti.cast(st.history[s, i, CONTACT_CLEARANCE].y, ti.i32) & group) != 0
     return result
 
 
 @ti.func
-def note_clearance(s, i, d, margin, springs: ti.template(), st: ti.template()):
-    """Node i was found d [m] from a collider with this margin [m]: its clearance is the least."""
+def note_clearance(s, i, d, margin, group, springs: ti.template(), st: ti.template()):
+    """Node i was found d [m] from a collider of `group` with this margin [m]: the group's
+    clearance is the least."""
     if ti.static(not springs):
         c = st.history[s, i, CONTACT_CLEARANCE]
-        st.history[s, i, CONTACT_CLEARANCE] = vec3(ti.min(c.x, d - margin), c.y, 0.0)
+        if group == SHAPES:
+            c.x = ti.min(c.x, d - margin)
+        else:
+            c.z = ti.min(c.z, d - margin)
+        st.history[s, i, CONTACT_CLEARANCE] = c
 
 
 @ti.func
 def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_prev, d, n, margin, friction,
-                          st: ti.template()):
+                          contact, st: ti.template()):
     """resolve_contact for node i of strand s in a collider's frame (head coordinates at pose
     now when on_head), its step totals (st.history's FRICTION_SHIFT in world axes and
     FRICTION_PUSH) read and written back, so a node touching a head and a world collider in one
-    step keeps one budget. Returns the moved point in the world."""
+    step keeps one budget; `contact` names the collider (held_by). Returns the moved point in the world."""
     shift = st.history[s, i, FRICTION_SHIFT]
     if on_head:
         shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
@@ -130,19 +185,48 @@ def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_
         shift = head_rotate(head, now, shift)
         moved = from_head(head, now, moved)
     st.history[s, i, FRICTION_SHIFT] = shift
-    st.history[s, i, FRICTION_PUSH] = vec3(total, 0.0, 0.0)
+    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, 0.0)
     return moved
 
 
+# A node the projection holds on a surface (CONTACT_NORMAL) may end its slide along the tangent
+# up to this fraction of its edge off a curved surface (of order slide^2 / radius); within it the
+# contact stays, taken back to the surface with its friction, and beyond it the node goes free
+HOLD_REACH = 0.1
+
+
 @ti.func
-def collider_frame(on_head, head: ti.template(), now, prev, p, p_prev):
-    """(p, p_prev) in the collider's frame: head coordinates at poses now / prev, or the world."""
+def in_contact(s, i, contact, d, margin, springs: ti.template(), md: ti.template(), st: ti.template()):
+    """Whether node i of strand s, d [m] from collider `contact` (held_by's numbering), is in
+    contact with it: inside the margin, or held on it by the projection (projection.py) and
+    within HOLD_REACH of its edge beyond the margin. A held node beyond that goes free."""
+    touching = d < margin
+    if ti.static(not springs):
+        if not touching and held_by(s, i, st) == contact:
+            if d < margin + HOLD_REACH * md.rest_length[s, ti.max(i - 1, 0)]:
+                touching = True
+            else:
+                st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+    return touching
+
+
+@ti.func
+def held_by(s, i, st: ti.template()):
+    """The collider holding node i of strand s in this step's projection: c + 1 for collider c
+    (the analytic ones, then the distance grid), -1 - k for hand k, 0 if none."""
+    contact = 0
+    if st.history[s, i, CONTACT_NORMAL].norm_sqr() > 0.0:
+        contact = ti.cast(st.history[s, i, FRICTION_PUSH].y, ti.i32)
+    return contact
+
+
+@ti.func
+def collider_frame(on_head, head: ti.template(), k, p):
+    """Point p [m] in the collider's frame: head coordinates at head pose k, or the world."""
     local = p
-    local_prev = p_prev
     if on_head:
-        local = to_head(head, now, p)
-        local_prev = to_head(head, prev, p_prev)
-    return local, local_prev
+        local = to_head(head, k, p)
+    return local
 
 
 def root_keeps_collider(root_distance, margin):
@@ -177,17 +261,19 @@ def contact_spring(s, i, target, st: ti.template()):
 
 
 @ti.func
-def place_contact(s, i, target, springs: ti.template(), md: ti.template(), st: ti.template()):
-    """Node i of strand s to its contact target [m] (world): placed (dx = x - x_prev), or with
-    springs pulled there by the implicit correction's solve (contact_spring) if the push is
-    deeper than SPRING_PUSH of the node's edge (shallower ones are left to the fast projection
-    after the solve)."""
+def place_contact(s, i, target, normal, springs: ti.template(), md: ti.template(), st: ti.template()):
+    """Node i of strand s to its contact target [m] (world) on a surface of outward normal
+    `normal` (world axes): placed (dx = x - x_prev) and the normal noted for the projection
+    (CONTACT_NORMAL), or with springs pulled there by the implicit correction's solve
+    (contact_spring) if the push is deeper than SPRING_PUSH of the node's edge (shallower ones
+    are left to the fast projection after the solve)."""
     if ti.static(springs):
         if (target - point(st.x, s, i)).norm() > SPRING_PUSH * md.rest_length[s, ti.max(i - 1, 0)]:
             contact_spring(s, i, target, st)
     else:
         st.x[s, i] = target
         st.dx[s, i] = step_displacement(st.x, st.x_prev, s, i)  # placed, not moved by: see strand_velocities
+        st.history[s, i, CONTACT_NORMAL] = normal
 
 
 @ti.func
@@ -216,7 +302,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     # inlined once, not once per kind of collider. Each copy of them was a large share of the
     # implicit step's compile time (its kernel holds this function twice).
     if ti.static(not springs):
-        plan_queries(s, md.node_count[s], st)
+        plan_queries(s, md.node_count[s], n_analytic, st)
     for c in range(n_analytic + ti.static(1 if fl.mesh else 0)):
         on_head = 0
         margin = 0.0
@@ -229,10 +315,13 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             on_head = ti.cast(co.sdf_meta[2][0] > 0.5, ti.i32)
             margin = co.sdf_meta[1][1]
             friction = co.sdf_meta[1][2]
+        group = SHAPES
+        if c >= n_analytic:
+            group = GRID
         for i in range(md.node_count[s]):
-            if not queried(s, i, springs, st):
+            if not queried(s, i, group, springs, st):
                 continue
-            local, local_prev = collider_frame(on_head, head, now, prev, point(x, s, i), point(x_prev, s, i))
+            local = collider_frame(on_head, head, now, point(x, s, i))
             d = 0.0
             n = vec3(0.0, 0.0, 1.0)
             if c < n_analytic:
@@ -240,12 +329,16 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             else:
                 if ti.static(fl.mesh):
                     d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
-            note_clearance(s, i, d, margin, springs, st)  # a root held inside stays queried
+            note_clearance(s, i, d, margin, group, springs, st)  # a root held inside stays queried
             if i == 0 and d < -margin:
                 break
-            if md.inv_mass[s, i] > 0.0 and d < margin:
+            if md.inv_mass[s, i] > 0.0 and in_contact(s, i, c + 1, d, margin, springs, md, st):
+                normal = n
+                if on_head:
+                    normal = head_rotate(head, now, n)
+                local_prev = collider_frame(on_head, head, prev, point(x_prev, s, i))
                 place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, friction, st), springs, md, st)
+                                                          margin, friction, c + 1, st), normal, springs, md, st)
                 pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -253,15 +346,15 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 # in the hand's frame: its own motion over the step does not count as slip
                 centre = dr.tool_points[tool_now, k]
                 for i in range(md.node_count[s]):
-                    if md.inv_mass[s, i] > 0.0 and queried(s, i, springs, st):
+                    if md.inv_mass[s, i] > 0.0 and queried(s, i, SHAPES, springs, st):
                         local = point(x, s, i) - centre
                         local_prev = point(x_prev, s, i) - dr.tool_points[tool_prev, k]
                         d, n = sphere_distance(local, dr.tools[k][1])
-                        note_clearance(s, i, d, dr.tools[k][2], springs, st)
-                        if d < dr.tools[k][2]:
+                        note_clearance(s, i, d, dr.tools[k][2], SHAPES, springs, st)
+                        if in_contact(s, i, -1 - k, d, dr.tools[k][2], springs, md, st):
                             # in the hand's frame, which does not turn: shift in world axes
                             moved = contact_with_friction(s, i, False, head, now, local, local_prev, d, n,
-                                                          dr.tools[k][2], dr.tools[k][3], st)
-                            place_contact(s, i, centre + moved, springs, md, st)
+                                                          dr.tools[k][2], dr.tools[k][3], -1 - k, st)
+                            place_contact(s, i, centre + moved, n, springs, md, st)
                             pushes += 1
     return pushes

@@ -70,11 +70,20 @@ class Wind:
 
 
 @ti.func
-def air_velocity(base, gusts: ti.template(), modes: ti.template(), t, p):
+def gusting_wind(base, gusts: ti.template(), t):
+    """The mean wind [m/s] at time t [s]: base (1 + sum_g a_g sin(omega_g t + phi_g)), the same
+    everywhere (gusts [G] vec3: amplitude, omega [1/s], phase)."""
     factor = 1.0
     for g in range(gusts.shape[0]):
         factor += gusts[g][0] * ti.sin(gusts[g][1] * t + gusts[g][2])
-    u = base * factor
+    return base * factor
+
+
+@ti.func
+def air_velocity(wind, modes: ti.template(), t, p):
+    """The air's velocity [m/s] at point p [m] and time t [s]: the gusting wind (gusting_wind)
+    plus the turbulence's Fourier modes (Wind.tables)."""
+    u = wind
     for m in range(modes.shape[0]):
         u += ti.sin(modes[m, 0].dot(p) - modes[m, 1][0] * t + modes[m, 1][1]) * modes[m, 2]
     return u

@@ -9,6 +9,7 @@ from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, SCALAR_NA
                       StepBundles, StepScalars)
 from .fused import run_stages
 from .plan import BAD, StepPlan
+from ...rods.spread import spread_factor
 from .stages import PROJECTION, stage_frames_twist, STAGE_FUNCS, stage_project, STAGES
 
 
@@ -50,11 +51,14 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
     corrections. The scalars come in grid_params[STEP_VALUES:] (write_step_values): Taichi's cap
     of 64 arguments leaves no room for them."""
     sc, self_contact, mask, friction, allowed, _, _ = read_step_values(cg.grid_params)
-    for s in range(st.x.shape[0]):
-        st.counters[s, BAD] = -1
-        for stage in ti.static(STAGE_FUNCS[:PROJECTION + 1]):
-            if stage(s, 0, fl, sc, md, st, dr, co):
-                st.counters[s, BAD] = 0
+    factor = spread_factor(st.x.shape[0])
+    for t in range(st.x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            st.counters[s, BAD] = -1
+            for stage in ti.static(STAGE_FUNCS[:PROJECTION + 1]):
+                if stage(s, 0, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = 0
     contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx, self_contact,
                  mask, friction, cg.hits)  # (the record array: unused when resolving)
     cg.grid_params[DONE] = 1.0
@@ -64,13 +68,17 @@ def advance_with_strand_contact(fl: ti.template(), with_friction: ti.template(),
         cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], cg.grid_params[MAX_PENETRATION])
         if cg.grid_params[MAX_PENETRATION] > allowed:
             cg.grid_params[DONE] = 0.0
-    for s in range(st.x.shape[0] * project):
-        if stage_project(s, 0, fl, sc, md, st, dr, co):
-            st.counters[s, BAD] = 0
+    for t in range(st.x.shape[0] * factor * project):
+        if t % factor == 0:
+            s = t // factor
+            if stage_project(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
     done = ti.cast(cg.grid_params[DONE], ti.i32)
-    for s in range(st.x.shape[0] * done):
-        if stage_frames_twist(s, 0, fl, sc, md, st, dr, co):
-            st.counters[s, BAD] = 0
+    for t in range(st.x.shape[0] * factor * done):
+        if t % factor == 0:
+            s = t // factor
+            if stage_frames_twist(s, 0, fl, sc, md, st, dr, co):
+                st.counters[s, BAD] = 0
 
 
 @ti.kernel

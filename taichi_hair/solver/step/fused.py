@@ -5,6 +5,7 @@ from dataclasses import asdict
 import taichi as ti
 
 from ...rods.arrays import Ints2, Vec3s1, Vec3s2
+from ...rods.spread import spread_factor
 from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepScalars
 from .plan import BAD, StageFlags
 from .stages import STAGE_FUNCS, strand_place_root
@@ -21,15 +22,18 @@ def advance_strands(n_steps: int, fl: ti.template(), h: float, k0: float, drag: 
     sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
-    for s in range(st.x.shape[0]):
-        st.counters[s, BAD] = -1
-        for k in range(n_steps):
-            bad = 0
-            for stage in ti.static(STAGE_FUNCS):
-                bad += stage(s, k, fl, sc, md, st, dr, co)
-            if bad:
-                st.counters[s, BAD] = k
-                break
+    factor = spread_factor(st.x.shape[0])
+    for t in range(st.x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            st.counters[s, BAD] = -1
+            for k in range(n_steps):
+                bad = 0
+                for stage in ti.static(STAGE_FUNCS):
+                    bad += stage(s, k, fl, sc, md, st, dr, co)
+                if bad:
+                    st.counters[s, BAD] = k
+                    break
 
 
 def compiled_variants() -> list[dict]:
@@ -53,12 +57,15 @@ def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: 
     sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
-    for s in range(st.x.shape[0]):
-        if ti.static(first == 0):
-            st.counters[s, BAD] = -1
-        for stage in ti.static(STAGE_FUNCS[first:last]):
-            if stage(s, 0, fl, sc, md, st, dr, co):
-                st.counters[s, BAD] = 0
+    factor = spread_factor(st.x.shape[0])
+    for t in range(st.x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            if ti.static(first == 0):
+                st.counters[s, BAD] = -1
+            for stage in ti.static(STAGE_FUNCS[first:last]):
+                if stage(s, 0, fl, sc, md, st, dr, co):
+                    st.counters[s, BAD] = 0
 
 
 @ti.kernel

@@ -12,6 +12,7 @@ from ..implicit import (CORRECTION_TOL, length_residual, MAX_CORRECTIONS, strand
 from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepBundles, StepScalars
 from .fused import run_stages
 from .plan import BAD, TWIST_NONE
+from ...rods.spread import spread_factor
 from .stages import INTEGRATION, place_root_and_pins, stage_forces, STAGE_FUNCS, STAGES
 
 
@@ -60,27 +61,30 @@ def implicit_part(part: ti.template(), correction: ti.template(), forces: ti.tem
     sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
-    for s in range(st.x.shape[0]):
-        if ti.static(forces):
-            if k == 0:
-                st.counters[s, BAD] = -1
-        if implicit_round(s, k, j, md.node_count, md.inv_mass, md.rest_length, st.x, st.counters):
-            if ti.static(part == ASSEMBLE):
-                bad = 0
-                if ti.static(forces):
-                    bad += stage_forces(s, k, fl, sc, md, st, dr, co)
-                strand_implicit_assemble(s, k, correction, sc.h, sc.drag,
-                                         ti.static(fl.twist_mode != TWIST_NONE), fl, sc, md, st, dr, co)
-                if bad:
-                    st.counters[s, BAD] = k
-            if ti.static(part == FINISH):
-                strand_implicit_finish(s, correction, sc.h, md, st)
-                if ti.static(correction == 0):
-                    now, _ = head_poses(k, fl)
-                    place_root_and_pins(s, k, now, fl, sc, md, st, dr)
-                else:
-                    if length_residual(s, md.node_count, md.inv_mass, md.rest_length, st.x) > CORRECTION_TOL:
-                        more[None] = 1
+    factor = spread_factor(st.x.shape[0])
+    for t in range(st.x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            if ti.static(forces):
+                if k == 0:
+                    st.counters[s, BAD] = -1
+            if implicit_round(s, k, j, md.node_count, md.inv_mass, md.rest_length, st.x, st.counters):
+                if ti.static(part == ASSEMBLE):
+                    bad = 0
+                    if ti.static(forces):
+                        bad += stage_forces(s, k, fl, sc, md, st, dr, co)
+                    strand_implicit_assemble(s, k, correction, sc.h, sc.drag,
+                                             ti.static(fl.twist_mode != TWIST_NONE), fl, sc, md, st, dr, co)
+                    if bad:
+                        st.counters[s, BAD] = k
+                if ti.static(part == FINISH):
+                    strand_implicit_finish(s, correction, sc.h, md, st)
+                    if ti.static(correction == 0):
+                        now, _ = head_poses(k, fl)
+                        place_root_and_pins(s, k, now, fl, sc, md, st, dr)
+                    else:
+                        if length_residual(s, md.node_count, md.inv_mass, md.rest_length, st.x) > CORRECTION_TOL:
+                            more[None] = 1
 
 
 @ti.kernel
@@ -89,10 +93,13 @@ def implicit_solve(k: ti.i32, j: ti.i32, node_count: Ints1, inv_mass: Scalars2, 
     """Solve the systems of round j of step k (implicit_part's ASSEMBLE) in place
     (linalg.block_pentadiagonal_solve); counters[s, BAD] = k where a factorisation failed (a
     non-finite state). One thread per strand."""
-    for s in range(x.shape[0]):
-        if implicit_round(s, k, j, node_count, inv_mass, rest_length, x, counters):
-            if block_pentadiagonal_solve(s, node_count[s], blocks, block_rhs):
-                counters[s, BAD] = k
+    factor = spread_factor(x.shape[0])
+    for t in range(x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            if implicit_round(s, k, j, node_count, inv_mass, rest_length, x, counters):
+                if block_pentadiagonal_solve(s, node_count[s], blocks, block_rhs):
+                    counters[s, BAD] = k
 
 
 @ti.kernel
@@ -105,13 +112,16 @@ def implicit_stages(first: ti.template(), last: ti.template(), k: ti.i32, fl: ti
     sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
                      projection_iterations=projection_iterations, twist_tol=twist_tol,
                      twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
-    for s in range(st.x.shape[0]):
-        if st.counters[s, BAD] < 0 or st.counters[s, BAD] == k:
-            bad = 0
-            for stage in ti.static(STAGE_FUNCS[first:last]):
-                bad += stage(s, k, fl, sc, md, st, dr, co)
-            if bad:
-                st.counters[s, BAD] = k
+    factor = spread_factor(st.x.shape[0])
+    for t in range(st.x.shape[0] * factor):
+        if t % factor == 0:
+            s = t // factor
+            if st.counters[s, BAD] < 0 or st.counters[s, BAD] == k:
+                bad = 0
+                for stage in ti.static(STAGE_FUNCS[first:last]):
+                    bad += stage(s, k, fl, sc, md, st, dr, co)
+                if bad:
+                    st.counters[s, BAD] = k
 
 
 _CORRECTION_FLAG = []

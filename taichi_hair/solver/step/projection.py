@@ -5,7 +5,8 @@ import taichi as ti
 
 from ...rods.arrays import edge, vec3
 from ...rods.linalg import thomas_solve
-from ..collisions import head_poses, strand_collide, strand_reset_friction
+from ...rods.state import CONTACT_NORMAL, FRICTION_PUSH
+from ..collisions import collider_travel, head_poses, strand_collide, strand_reset_friction
 from ..pins import HELD_DAMPING
 from .plan import PROJ_CAP, PROJ_COUNT, PROJ_IT, PROJ_IT_SUM, PROJ_STALL, STALL_BELOW
 
@@ -45,6 +46,34 @@ def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
     return b
 
 
+# A contact is held on its surface in the projection (inverse_mass_times) only while its edges
+# can still change length tangentially: where holding it would leave an edge's row of
+# G M^-1 G^T under HOLD_BELOW of its free value (an edge along the normal, its other node held),
+# the node goes free again and the collider pushes it as before
+HOLD_BELOW = 0.05
+
+
+@ti.func
+def contact_normal(s, i, fl: ti.template(), st: ti.template()):
+    """The outward normal of the surface node i of strand s is held on (collisions.place_contact),
+    zero if none."""
+    n = vec3(0.0)
+    if ti.static(fl.contacts):
+        n = st.history[s, i, CONTACT_NORMAL]
+    return n
+
+
+@ti.func
+def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
+    """M_i^-1 v: node i's inverse mass [1/kg] times v, with a node in contact (a collider pushed
+    it this step) unable to move along the contact normal n: w_i (I - n n^T) v. So the projection
+    slides contacts along their surfaces and its Gauss-Newton steps converge with contacts inside
+    (docs/model.md, "Collisions"), where alternating pushes with free-node steps converged
+    linearly."""
+    n = contact_normal(s, i, fl, st)
+    return md.inv_mass[s, i] * (v - v.dot(n) * n)
+
+
 @ti.func
 def constraint_edge(s, j, e, shake, fl: ti.template(), st: ti.template()):
     """Edge j's direction in the constraint gradient G, given its current vector e: its
@@ -75,18 +104,31 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
         if b.dot(b) > 0.0 and n >= 3:
             slide = -2.0 * st.rhs[s, n - 3] * b * b.dot(
                 constraint_edge(s, n - 3, edge(st.x, s, n - 3, n - 2), shake, fl, st))
-    # node i moves by 2 w_i (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
+    # node i moves by 2 M_i^-1 (lambda_i e^i - lambda_{i-1} e^{i-1}), the edges taken before the
     # move: e^i still reads the old x_i and x_{i+1}, e^{i-1} is kept from the last pass
     e_before = vec3(0.0)
     for i in range(n):
-        move = vec3(0.0)
+        pull = vec3(0.0)
         e = vec3(0.0)
         if i + 1 < n:
             e = constraint_edge(s, i, edge(st.x, s, i, i + 1), shake, fl, st)
-            move += st.rhs[s, i] * e
+            pull += st.rhs[s, i] * e
         if i > 0:
-            move -= st.rhs[s, i - 1] * e_before
-        move *= 2.0 * md.inv_mass[s, i]
+            pull -= st.rhs[s, i - 1] * e_before
+        move = 2.0 * inverse_mass_times(s, i, pull, fl, md, st)
+        if ti.static(fl.contacts):
+            # a held contact's normal move, taken out of `move`, is the contact's reaction: into the
+            # surface it is a push and adds to the step's pushes P (friction's budget,
+            # collisions.resolve_contact); out of it, it takes back from P, and past P (a contact
+            # pushes, never pulls) the node goes free and moves out by the rest
+            n_i = contact_normal(s, i, fl, st)
+            if n_i.norm_sqr() > 0.0:
+                pushed = st.history[s, i, FRICTION_PUSH].x - 2.0 * md.inv_mass[s, i] * pull.dot(n_i)
+                if pushed < 0.0:
+                    st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+                    move -= pushed * n_i
+                    pushed = 0.0
+                st.history[s, i, FRICTION_PUSH].x = pushed
         st.x[s, i] += move
         st.dx[s, i] += move
         e_before = e
@@ -127,6 +169,14 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
             st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
+            if ti.static(fl.contacts):
+                held = 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st) + inverse_mass_times(s, j + 1, g, fl, md, st))
+                              + slide)
+                if held >= HOLD_BELOW * st.diag[s, j]:
+                    st.diag[s, j] = held
+                else:  # this edge cannot change length with its contacts held: they go free
+                    st.history[s, j, CONTACT_NORMAL] = vec3(0.0)
+                    st.history[s, j + 1, CONTACT_NORMAL] = vec3(0.0)
             if ti.static(fl.stretch):
                 length = ti.sqrt(e.dot(e))
                 rest = md.rest_length[s, j]
@@ -149,7 +199,7 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
                 st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
             g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
-            st.upper[s, j] = -4.0 * md.inv_mass[s, j + 1] * g.dot(g_next)
+            st.upper[s, j] = -4.0 * g.dot(inverse_mass_times(s, j + 1, g_next, fl, md, st))
     return res, turned
 
 
@@ -209,7 +259,8 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         if ti.static(not fl.contacts):
             restart = first
     if ti.static(fl.contacts):
-        strand_reset_friction(s, st)  # friction's cone holds on the step's totals
+        # friction's cone holds on the step's totals; the clearances, less the colliders' moves
+        strand_reset_friction(s, st, collider_travel(s, k, fl, md, st, dr))
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)

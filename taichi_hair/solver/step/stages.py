@@ -7,7 +7,7 @@ from ...rods.frames import strand_frames, strand_material_frames
 from ...rods.rod import strand_elastic_forces
 from ...rods.twist import (CAPPED, STALLED, strand_held_twist_forces, strand_kmoch_forces,
                            strand_twist_kmoch, strand_twist_quasistatic)
-from ...world.forces import air_velocity, grab_force
+from ...world.forces import air_velocity, grab_force, gusting_wind
 from ..collisions import head_poses, head_rotate
 from ..implicit import record_elastic_change, strand_implicit_velocities
 from ..pins import strand_carry_root_frame, strand_hold_clip_twist, strand_place_pins
@@ -23,10 +23,13 @@ def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: t
     [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field;
     grabs at the tools' positions at the start of step k."""
     t = (sc.k0 + k) * sc.h  # from the step's index, not a running sum: the same whatever the launches
+    wind = dr.loads[1]
+    if ti.static(fl.wind_field):
+        wind = gusting_wind(dr.loads[1], dr.gusts, t)
     for i in range(md.node_count[s]):
-        air = dr.loads[1]
+        air = wind
         if ti.static(fl.wind_field):
-            air = air_velocity(dr.loads[1], dr.gusts, dr.modes, t, point(st.x, s, i))
+            air = air_velocity(wind, dr.modes, t, point(st.x, s, i))
         f = md.mass[s, i] * dr.loads[0] - sc.drag * md.voronoi[s, i] * (st.v[s, i] - air)
         if ti.static(fl.touch):
             f += grab_force(dr.tools, dr.tool_points, k, point(st.x, s, i))
