@@ -14,8 +14,9 @@ Two modes (docs/model.md, "Twist"):
   energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases every iteration, so
   the iteration cannot cycle between branches, and near a minimum it is exact Newton
   (quadratic); an exact Newton step that turns no angle by more than WHOLE_NEWTON_STEP is taken
-  whole, without the line search's energy evaluations (the quasi-static case in a time step). It ends converged (scaled residual below tol), stalled (no step changes theta
-  in this precision) or at the iteration cap; callers count stalls and refuse caps.
+  whole, without the line search's energy evaluations (the quasi-static case in a time step).
+  It ends converged (scaled residual below tol), stalled (no step changes theta in this
+  precision) or at the iteration cap; callers count stalls and refuse caps.
 - `kmoch`: Kmoch et al.'s rule for elliptic hair: m1 (the major axis, soft bending) follows the
   curvature binormals at the edge's two end nodes (their |kb|^2-weighted mean direction, taken
   modulo pi), choosing theta, theta + pi or theta - pi by the lowest local energy. Parallel
