@@ -3,8 +3,9 @@
 The screen is cut into TILE x TILE pixel tiles. Each hair segment is binned into the tiles its
 footprint touches and, within a tile, into one of N_BINS depth bins spanning the hair's depth
 range (a counting sort: count, prefix sum, scatter; no atomics on pixels). Then one thread per
-tile sorts each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and
-first vertex; each bin just before the walk reaches it, so a tile that turns opaque leaves the
+tile (tiles in a mixed order, `render.threads`, so the CPU's threads share the work) sorts
+each bin's segments exactly by depth (Shell sort on 64-bit keys: depth bits and first vertex;
+each bin just before the walk reaches it, so a tile that turns opaque leaves the
 rest unsorted), walks them front to back (the segments' vertex data are cache misses: they
 are requested 8 entries at a time ahead of the walk, `request_vertices`, and each segment's
 ends read one iteration ahead) and blends each segment's fragments into the tile's pixels
@@ -27,6 +28,7 @@ nearest point does not get it, and only the vertices of segments binned somewher
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
+from .threads import mixed, spread
 
 TILE = 16
 N_BINS = 256
@@ -238,8 +240,15 @@ def composite_tiles(width: ti.i32, height: ti.i32,
     its loads are not optimised away)."""
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
+    n_tiles = tiles_x * tiles_y
+    # tiles in a mixed order: the CPU's threads each take a contiguous run of the loop, and
+    # in screen order one of them would get the middle of the picture, where the hair is
+    span, factor = spread(n_tiles)
     ti.loop_config(block_dim=1)
-    for tile in range(tiles_x * tiles_y):
+    for step in range(span * factor):
+        tile = mixed(step // factor, span)
+        if step % factor != 0 or tile >= n_tiles:
+            continue
         tx0, ty0 = (tile % tiles_x) * TILE, (tile // tiles_x) * TILE
         tx1, ty1 = ti.min(tx0 + TILE, width) - 1, ti.min(ty0 + TILE, height) - 1
         for py in range(ty0, ty1 + 1):

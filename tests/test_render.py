@@ -535,3 +535,31 @@ def test_tight_fit_keeps_every_point_in_frame_and_fills_more():
         assert s[:, 0].min() >= 0 and s[:, 0].max() <= 320 and s[:, 1].min() >= 0 and s[:, 1].max() <= 240
         spans.append((s[:, 1].max() - s[:, 1].min()) / 240)
     assert spans[1] > spans[0] * 1.1 and spans[1] > 0.9, spans
+
+
+
+@ti.kernel
+def _visit_mixed(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 when: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
+    span, factor = render.threads.spread(n)
+    for step in range(span * factor):
+        item = render.threads.mixed(step // factor, span)
+        if step % factor == 0 and item < n:
+            ti.atomic_add(seen[item], 1)
+            when[item] = step
+    return span * factor
+
+
+@pytest.mark.parametrize("n", [1, 7, 300, 1200, 4096, 5000])
+def test_mixed_loop_order_visits_every_item_once_and_spreads_runs(n):
+    """The tiles' loop order (`render.threads`) is a permutation: every item once. And it mixes:
+    the first half of the iterations (one CPU thread's block on 2 threads) holds items from
+    every quarter of the range (the screen), in about equal numbers."""
+    seen, when = ti.ndarray(ti.i32, (n,)), ti.ndarray(ti.i32, (n,))
+    seen.fill(0)
+    steps = _visit_mixed(n, seen, when)
+    np.testing.assert_array_equal(seen.to_numpy(), np.ones(n, np.int32))
+    if n >= 300:
+        early = np.nonzero(when.to_numpy() < steps // 2)[0]
+        counts = np.histogram(early, bins=4, range=(0, n))[0]
+        assert counts.min() > 0.6 * len(early) / 4, counts

@@ -171,10 +171,16 @@ def _push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
     radii, margin = shape[1], shape[2][0]
     centre = _rotate(head, shape[0]) + head[3]
     reach = ti.max(radii[0], radii[1], radii[2]) + margin
+    # the ellipsoid grown by the margin lies inside the ellipsoid scaled by 1 + margin / (its
+    # least semi-axis) (support functions: h(u) + margin <= h(u) (1 + margin / r_min)), so a
+    # node outside that one (with room for rounding) needs no nearest-point search
+    grown = (1.0 + margin / ti.min(radii[0], radii[1], radii[2])) * radii
     for d, i in ti.ndrange(out.shape[0], out.shape[1]):
         rel = out[d, i] - centre
         if i > 0 and rel.norm() < reach:
             p = _unrotate(head, rel)
+            if ((p / grown) ** 2).sum() > 1.0 + 1e-3:
+                continue
             if p.norm() < 1e-9 * reach:  # the centre itself: leave along the shortest axis
                 rmin = ti.min(radii[0], radii[1], radii[2])
                 p = 1e-6 * reach * ti.cast(radii == rmin, float).normalized()
