@@ -11,11 +11,18 @@ experiment (a cosseratbench experiment, a timed rendering) (`SLOW_CALLS`, `SLOW_
 
 import ast
 import inspect
+import os
 from pathlib import Path
 
 import pytest
 
-import taichi_hair as th
+# under pytest-xdist (`-n 2`) each worker keeps its own Taichi offline cache below the given one
+# (and its child processes inherit it): two processes never write one cache's files at once
+if os.environ.get("PYTEST_XDIST_WORKER") and os.environ.get("TI_OFFLINE_CACHE_FILE_PATH"):
+    os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = os.path.join(os.environ["TI_OFFLINE_CACHE_FILE_PATH"],
+                                                            os.environ["PYTEST_XDIST_WORKER"])
+
+import taichi_hair as th  # noqa: E402  (after the cache path is chosen)
 
 th.init(arch="cpu", precision="float64")
 
