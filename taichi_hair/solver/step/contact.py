@@ -99,23 +99,29 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
     for k in range(n_steps):
         failed = 0
         for s in range(st.x.shape[0]):
-            for stage in ti.static(STAGE_FUNCS[:PROJECTION + 1]):
+            for stage in ti.static(STAGE_FUNCS[:PROJECTION]):
                 if stage(s, k, fl, sc, md, st, dr, co):
                     st.counters[s, BAD] = k
                     failed = 1
-        depth = 0.0
-        for _ in range(iterations):
-            contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx,
-                         self_contact, mask, friction, cg.hits)
-            if cg.grid_counters[PAIRS] == 0:
-                break
-            depth = cg.grid_params[MAX_PENETRATION]
+        # the projection, then up to `iterations` contact passes each followed by the
+        # projection again, until a pass finds nothing (no projection after it) or nothing
+        # deeper than allowed: written as one loop so that the projection is inlined once
+        # (this kernel is one serial task, one LLVM function, whose compile time grows
+        # faster than its length)
+        depth, passes = 0.0, 0
+        while True:
             for s in range(st.x.shape[0]):
                 if stage_project(s, k, fl, sc, md, st, dr, co):
                     st.counters[s, BAD] = k
                     failed = 1
-            if depth <= allowed:
+            if passes == iterations or (passes > 0 and depth <= allowed):
                 break
+            contact_pass(RESOLVE, with_friction, cg, md.node_count, st.x, st.x_prev, md.inv_mass, st.dx,
+                         self_contact, mask, friction, cg.hits)
+            passes += 1
+            if cg.grid_counters[PAIRS] == 0:
+                break
+            depth = cg.grid_params[MAX_PENETRATION]
         cg.grid_params[DEPTH_MAX] = ti.max(cg.grid_params[DEPTH_MAX], depth)
         for s in range(st.x.shape[0]):
             if stage_frames_twist(s, k, fl, sc, md, st, dr, co):
