@@ -17,10 +17,11 @@ from pathlib import Path
 import pytest
 
 # under pytest-xdist (`-n 2`) each worker keeps its own Taichi offline cache below the given one
-# (and its child processes inherit it): two processes never write one cache's files at once
-if os.environ.get("PYTEST_XDIST_WORKER") and os.environ.get("TI_OFFLINE_CACHE_FILE_PATH"):
-    os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = os.path.join(os.environ["TI_OFFLINE_CACHE_FILE_PATH"],
-                                                            os.environ["PYTEST_XDIST_WORKER"])
+# (or Taichi's default), and its child processes inherit it: two processes sharing one cache
+# contend for its lock (Taichi warns "Lock ... ticache.lock failed" when it cleans up)
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    _cache = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or os.path.expanduser("~/.cache/taichi/ticache")
+    os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = os.path.join(_cache, os.environ["PYTEST_XDIST_WORKER"])
 
 import taichi_hair as th  # noqa: E402  (after the cache path is chosen)
 

@@ -8,12 +8,13 @@ Two modes (docs/model.md, "Twist"):
   E_twist with the centreline fixed, by Newton's method with guaranteed descent. The Hessian
   in theta is tridiagonal per strand: each bending term depends on one angle, the twist terms
   couple neighbours. Far from a minimum the bending diagonal can be negative; when the exact
-  Hessian is not positive definite (a pivot of its LDL^T factorisation <= 0) its bending
-  diagonal is clamped at zero, which is positive definite (the twist part is, with the clamp
-  or the held root edge), so the step is a descent direction. A backtracking line search on the
-  energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases every iteration, so
-  the iteration cannot cycle between branches, and near a minimum it is exact Newton
-  (quadratic); an exact Newton step that turns no angle by more than WHOLE_NEWTON_STEP is taken
+  Hessian is not positive definite (a pivot of its LDL^T factorisation <= 0) it is shifted by
+  a multiple of the identity until it is (Levenberg-Marquardt, SHIFT_TRIES tries), and failing
+  that its bending diagonal is clamped at zero, which is positive definite (the twist part is,
+  with the clamp or the held root edge), so the step is a descent direction. A backtracking
+  line search on the energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases
+  every iteration, so the iteration cannot cycle between branches, and near a minimum it is
+  exact Newton (quadratic); an exact Newton step that turns no angle by more than WHOLE_NEWTON_STEP is taken
   whole, without the line search's energy evaluations (the quasi-static case in a time step).
   It ends converged (scaled residual below tol), stalled (no step changes theta in this
   precision) or at the iteration cap; callers count stalls and refuse caps.
@@ -49,6 +50,9 @@ MAX_HALVINGS = 40
 # a free root's gauge: relative damping of edge 0's Newton diagonal (a round strand's energy does
 # not change when every angle turns together, so its Hessian is singular along that turn)
 GAUGE_DAMPING = 1e-6
+# an indefinite Newton system is shifted by SHIFT_START x its largest diagonal entry, then ten
+# times that, ... for SHIFT_TRIES tries, before the bending diagonal is clamped (module doc)
+SHIFT_START, SHIFT_TRIES = 1e-3, 4
 # how a quasistatic solve ended: callers count stalls and refuse caps
 CONVERGED, STALLED, CAPPED = 0, 1, 2
 
@@ -328,9 +332,24 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
             break
         positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
         exact = positive
-        if not positive:  # indefinite: a descent direction from the clamped bending diagonal
-            assemble_newton(s, n, first, lo, 1, rotation, md, st, k, clips, clip)
+        # indefinite: the exact Hessian shifted by SHIFT_START x its largest diagonal entry, ten
+        # times more each try, until it is positive definite (Levenberg-Marquardt); the last try
+        # clamps the bending diagonal instead, which always is
+        attempt = 0
+        while not positive:
+            clamped = 1 if attempt == SHIFT_TRIES else 0
+            assemble_newton(s, n, first, lo, clamped, rotation, md, st, k, clips, clip)
+            if not clamped:
+                largest = 0.0
+                for j in range(lo, n - 1):
+                    largest = ti.max(largest, ti.abs(diag[s, j]))
+                shift = SHIFT_START * largest * 10.0 ** attempt
+                for j in range(lo, n - 1):
+                    diag[s, j] += shift
             positive, decrement = ldl_solve(s, lo, n - 2, diag, upper, grad)
+            if clamped:
+                break
+            attempt += 1
         moved = 0.0
         if exact:
             moved = newton_step_within(s, lo, n - 2, st)
