@@ -537,7 +537,6 @@ def test_tight_fit_keeps_every_point_in_frame_and_fills_more():
     assert spans[1] > spans[0] * 1.1 and spans[1] > 0.9, spans
 
 
-
 @ti.kernel
 def _visit_mixed(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  when: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:

@@ -3,11 +3,13 @@ the gradient of the energy at twist equilibrium, and a solve that cannot converg
 step instead of returning forces that are not a gradient."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import taichi_hair as th
+from taichi_hair.app.runner import load_scene_module
 
 ELLIPTICITIES = (1.3, 1.7, 2.5, 4.0)
 CURL_RADII = (0.003, 0.006, 0.01, 0.02)  # [m]
@@ -219,11 +221,7 @@ def test_combed_strands_keep_a_fast_twist_solve_through_an_indefinite_hessian():
     keeps the solve to a few dozen iterations; clamping the bending diagonal alone (the fallback
     before) crept at 8 halvings an iteration and hit the cap at t = 0.90 s in float64 (1.38 s in
     float32)."""
-    from pathlib import Path
-    from taichi_hair.app.runner import call_script, load_scene_module
-    script = Path(__file__).resolve().parents[1] / "scenes" / "touch_comb.py"
-    module = load_scene_module(script)
-    scene = call_script(script, module, "build", th.Scene)
+    scene = load_scene_module(Path(__file__).resolve().parents[1] / "scenes" / "touch_comb.py").build()
     sim = th.Simulator.from_scene(scene, dt=1.0 / 24.0)
     steps = sim.fit_step(1.0 / 24.0)
     worst = 0

@@ -14,8 +14,9 @@ Two modes (docs/model.md, "Twist"):
   with the clamp or the held root edge), so the step is a descent direction. A backtracking
   line search on the energy (Armijo) takes it, capped at pi/2 per angle: the energy decreases
   every iteration, so the iteration cannot cycle between branches, and near a minimum it is
-  exact Newton (quadratic); an exact Newton step that turns no angle by more than WHOLE_NEWTON_STEP is taken
-  whole, without the line search's energy evaluations (the quasi-static case in a time step).
+  exact Newton (quadratic); an exact Newton step that turns no angle by more than
+  WHOLE_NEWTON_STEP is taken whole, without the line search's energy evaluations (the
+  quasi-static case in a time step).
   It ends converged (scaled residual below tol), stalled (no step changes theta in this
   precision) or at the iteration cap; callers count stalls and refuse caps.
 - `kmoch`: Kmoch et al.'s rule for elliptic hair: m1 (the major axis, soft bending) follows the
