@@ -7,13 +7,10 @@ import warnings
 
 import numpy as np
 import pytest
-import taichi as ti
 
 import taichi_hair as th
 from helpers import rotation_matrix
-from taichi_hair.solver.collisions import resolve_contact, sliding_share
 from taichi_hair.solver.step.plan import STALL_BELOW
-from taichi_hair.solver.step.projection import mobility_times
 
 RADII = np.array([0.08, 0.1, 0.115])
 
@@ -323,54 +320,3 @@ def test_touch_tools_compile_without_division_warnings():
     assert float(done.stdout.split()[-1]) == pytest.approx(4e-4)
     # a hand sent through the ellipsoid branch with zero radii compiles 12 "Potential division by 0" warnings
     assert done.stderr.count("division by 0") == 0, done.stderr[-3000:]
-
-
-# ---- friction inside the projection: its mobility is the derivative of friction's placement ----
-
-@ti.kernel
-def friction_placement(q: ti.math.vec3, pushed: float, friction: float,
-                       v: ti.math.vec3) -> ti.types.vector(6, float):
-    """resolve_contact on the plane z = 0 (margin 0) for a node at q that started the step at the
-    origin, with pushes `pushed` so far and no shift yet: (where it is placed, mobility_times(v)
-    for the mobility the projection reads from that contact, projection.node_mobility)."""
-    n = ti.math.vec3(0.0, 0.0, 1.0)
-    placed, shift, total, state = resolve_contact(q, ti.math.vec3(0.0), q.z, n, 0.0, friction,
-                                                  ti.math.vec3(0.0), pushed, 0.0)
-    u = ti.math.vec3(0.0)
-    f = ti.math.vec3(0.0)
-    if shift.norm() > 0.0:
-        u = -shift / shift.norm()
-        f = -shift / total
-    r = sliding_share(state)
-    moved = mobility_times(1.0, n, u, r, f, v)
-    return ti.Vector([placed.x, placed.y, placed.z, moved.x, moved.y, moved.z])
-
-
-@pytest.mark.parametrize("slip", [0.3, 0.5, 2.0, 20.0])  # |slip| over the cone mu P
-def test_sliding_mobility_is_the_derivative_of_frictions_placement(slip):
-    """The projection's mobility of a sliding contact (projection.mobility_times) against central
-    finite differences of where friction places the node (collisions.resolve_contact): along the
-    surface, a move of the frictionless position by v places the node by the mobility times v;
-    a push a into the surface (v = -a n) moves it by -mu a u against its slide. A slip inside
-    the cone (0.3, 0.5) holds: the placement does not move at all, the mobility 0 that
-    node_mobility gives a stuck node."""
-    mu, pushed = 0.3, 1e-3
-    direction = np.array([0.8, 0.6, 0.0])
-    q = slip * mu * pushed * direction
-    h = 1e-7
-    for v in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.6, -0.8, 0.0])):
-        ahead = friction_placement(q + h * v, pushed, mu, v)[:3]
-        behind = friction_placement(q - h * v, pushed, mu, v)[:3]
-        derivative = (ahead - behind) / (2 * h)
-        if slip < 1.0:
-            assert np.abs(derivative).max() < 1e-6
-        else:
-            moved = friction_placement(q, pushed, mu, v)[3:]
-            assert np.allclose(moved, derivative, atol=1e-5 * np.abs(derivative).max() + 1e-9)
-    if slip > 1.0:
-        a = 1e-6  # the push a into the surface raises the cone by mu a
-        derivative = (friction_placement(q, pushed + a, mu, direction)[:3]
-                      - friction_placement(q, pushed - a, mu, direction)[:3]) / (2 * a)
-        moved = friction_placement(q, pushed, mu, np.array([0.0, 0.0, -1.0]))[3:]
-        assert np.allclose(moved, derivative, atol=1e-6)
-        assert np.allclose(derivative, -mu * direction, atol=1e-6)

@@ -6,8 +6,7 @@ import taichi as ti
 from ...rods.arrays import edge, vec3
 from ...rods.linalg import back_substitute
 from ...rods.state import CONTACT_NORMAL, FRICTION_PUSH, FRICTION_SHIFT
-from ..collisions import (SLID, STUCK, collider_travel, head_poses, sliding_share, strand_collide,
-                          strand_reset_friction)
+from ..collisions import STUCK, SLID, collider_travel, sliding_share, head_poses, strand_collide, strand_reset_friction
 from ..pins import HELD_DAMPING
 from .plan import PROJ_CAP, PROJ_COUNT, PROJ_IT, PROJ_IT_SUM, PROJ_STALL, STALL_BELOW
 
@@ -296,8 +295,7 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
         if w > 0.0 or slide > 0.0:
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
-            both = mobility_times(w0, n0, u0, r0, f0, g) + mobility_times(w1, n1, u1, r1, f1, g)
-            diag = 4.0 * (g.dot(both) + slide)
+            diag = 4.0 * (g.dot(mobility_times(w0, n0, u0, r0, f0, g) + mobility_times(w1, n1, u1, r1, f1, g)) + slide)
             if n0.norm_sqr() + n1.norm_sqr() > 0.0:
                 floor = HOLD_BELOW * 4.0 * (g.dot(g) * w + slide)
             if ti.static(fl.stretch):
