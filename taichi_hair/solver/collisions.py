@@ -42,37 +42,14 @@ def from_head(head: ti.template(), k, p):
     return head_rotate(head, k, p) + head[k, 3]
 
 
-# A contact's friction state in this step's projection (FRICTION_PUSH.z): static friction holds
-# it and the projection holds it in place (STUCK); it slides, and has never been stuck in this
-# step (0 <= z < 1); its slip left the cone while it was held, and from then on in this step it
-# slides (z <= SLID). A sliding node's z also carries r, the cone over its slip (< 1 while it
-# slides): z = r, or SLID - r. A node goes sliding -> STUCK -> SLID at most once a step, so the
-# active set cannot cycle.
-STUCK = 1.0
-SLID = -1.0
-
-
 @ti.func
-def sliding_share(state):
-    """r (the friction cone over the slip, at most 1) from a sliding contact's state."""
-    r = state
-    if state <= SLID:
-        r = ti.min(SLID - state, 1.0)
-    return r
-
-
-@ti.func
-def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed, state):
+def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     """Move p (distance d [m], outward normal n, both in the collider's frame) out to the margin,
     with Coulomb friction on the step's totals: shift [m] is the friction displacement applied
-    to the node so far this step, pushed [m] its pushes so far, state its friction state
-    (STUCK, or a sliding one's). The node's slip along the surface since p_prev, less that shift, is
-    cancelled by a new shift of at most friction x (pushed + this push): static friction while
-    the slip fits in the cone, else it is shortened by the cone's length. A STUCK node whose
-    slip has left the cone starts sliding where it is, with the cone's whole shift against that
-    slip: the slip the projection asked of a held node (projection.solve_inextensibility)
-    overstates a free one's, and moving it by the excess would overshoot. Returns (moved, new
-    shift, new pushed, new state)."""
+    to the node so far this step, pushed [m] its pushes so far. The node's slip along the
+    surface since p_prev, less that shift, is cancelled by a new shift of at most friction x
+    (pushed + this push): static friction while the slip fits in the cone, else it is
+    shortened by the cone's length. Returns (moved, new shift, new pushed)."""
     push = margin - d
     total = pushed + push
     # only the shift's part along this surface is taken back: its normal part, left by an
@@ -82,20 +59,9 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed, state):
     tangential = slip - slip.dot(n) * n
     length = tangential.norm()
     new_shift = vec3(0.0)
-    share = 1.0  # the cone over the slip, at most 1 (static friction)
     if length > 1e-12:
-        share = ti.min(1.0, friction * total / length)
-        new_shift = -share * tangential
-    placed = moved + new_shift
-    new_state = STUCK
-    if state == STUCK and share < 1.0:
-        placed = p + push * n
-        new_state = SLID - share
-    elif state <= SLID:
-        new_state = SLID - share
-    elif share < 1.0:
-        new_state = share
-    return placed, new_shift, total, new_state
+        new_shift = -ti.min(1.0, friction * total / length) * tangential
+    return moved + new_shift, new_shift, total
 
 
 # Distances change at most DISTANCE_SLOPE times as fast as a node moves (1 for exact distances;
@@ -209,22 +175,17 @@ def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_
     """resolve_contact for node i of strand s in a collider's frame (head coordinates at pose
     now when on_head), its step totals (st.history's FRICTION_SHIFT in world axes and
     FRICTION_PUSH) read and written back, so a node touching a head and a world collider in one
-    step keeps one budget; `contact` names the collider (held_by); FRICTION_PUSH.z its friction
-    state (STUCK or a sliding one's, see STUCK).
-    Returns the moved point in the world."""
+    step keeps one budget; `contact` names the collider (held_by). Returns the moved point in the world."""
     shift = st.history[s, i, FRICTION_SHIFT]
     if on_head:
         shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
-    state = st.history[s, i, FRICTION_PUSH].z
-    if st.history[s, i, CONTACT_NORMAL].norm_sqr() == 0.0 and state == STUCK:
-        state = SLID  # pulled off its surface by the projection since: not held again this step
-    moved, shift, total, state = resolve_contact(local, local_prev, d, n, margin, friction, shift,
-                                                 st.history[s, i, FRICTION_PUSH].x, state)
+    moved, shift, total = resolve_contact(local, local_prev, d, n, margin, friction, shift,
+                                          st.history[s, i, FRICTION_PUSH].x)
     if on_head:
         shift = head_rotate(head, now, shift)
         moved = from_head(head, now, moved)
     st.history[s, i, FRICTION_SHIFT] = shift
-    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, state)
+    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, 0.0)
     return moved
 
 

@@ -4,9 +4,9 @@ with the collider pushes and their friction, per strand."""
 import taichi as ti
 
 from ...rods.arrays import edge, vec3
-from ...rods.linalg import back_substitute
-from ...rods.state import CONTACT_NORMAL, FRICTION_PUSH, FRICTION_SHIFT
-from ..collisions import STUCK, SLID, collider_travel, sliding_share, head_poses, strand_collide, strand_reset_friction
+from ...rods.linalg import thomas_solve
+from ...rods.state import CONTACT_NORMAL, FRICTION_PUSH
+from ..collisions import collider_travel, head_poses, strand_collide, strand_reset_friction
 from ..pins import HELD_DAMPING
 from .plan import PROJ_CAP, PROJ_COUNT, PROJ_IT, PROJ_IT_SUM, PROJ_STALL, STALL_BELOW
 
@@ -53,16 +53,6 @@ def slider_vector(s, n, fl: ti.template(), dr: ti.template()):
 HOLD_BELOW = 0.05
 
 
-# node_mobility's f is friction's mu: above this, the pushes have all but gone (the projection took
-# them back) and the contact lets go in the next iteration
-FRICTION_MAX = 10.0
-
-
-# ... and r at most this: a node barely sliding keeps this much of its sideways mobility, so that
-# two edges cannot pin it between them (a singular system) where friction's direction turns fast
-SIDEWAYS_HELD_MAX = 0.9
-
-
 @ti.func
 def contact_normal(s, i, fl: ti.template(), st: ti.template()):
     """The outward normal of the surface node i of strand s is held on (collisions.place_contact),
@@ -74,109 +64,14 @@ def contact_normal(s, i, fl: ti.template(), st: ti.template()):
 
 
 @ti.func
-def stuck(s, i, fl: ti.template(), st: ti.template()):
-    """1 if node i of strand s is held on a surface by static friction: the collider's last pass
-    found its slip within the friction cone (collisions.contact_with_friction), else 0."""
-    held = 0
-    if ti.static(fl.contacts):
-        if st.history[s, i, CONTACT_NORMAL].norm_sqr() > 0.0 and st.history[s, i, FRICTION_PUSH].z == STUCK:
-            held = 1
-    return held
-
-
-@ti.func
-def node_mobility(s, i, fl: ti.template(), md: ti.template(), st: ti.template(), friction=1):
-    """Node i's mobility in the projection, (w, n, u, r, f): its inverse mass w [1/kg] (0 if
-    held, or stuck: static friction holds it in place), the outward normal n of the surface a
-    collider holds it on (zero if none), and for a node sliding on it against friction the
-    sliding direction u, the share r of a sideways move that friction takes back (the cone over
-    the slip, collisions.resolve_contact) and f = mu u, so that it gives up f x its push into
-    the surface; zero if none. Without friction (friction = 0): contacts held on their surfaces
-    only. See mobility_times."""
-    w = md.inv_mass[s, i]
-    n = vec3(0.0)
-    u = vec3(0.0)
-    r = 0.0
-    f = vec3(0.0)
-    if ti.static(fl.contacts):
-        n = st.history[s, i, CONTACT_NORMAL]
-        if friction and n.norm_sqr() > 0.0:
-            pushed = st.history[s, i, FRICTION_PUSH]
-            if pushed.z == STUCK:
-                w = 0.0
-            else:
-                r = ti.min(sliding_share(pushed.z), SIDEWAYS_HELD_MAX)
-                shift = st.history[s, i, FRICTION_SHIFT]
-                shift -= shift.dot(n) * n
-                length = shift.norm()
-                if length > 1e-15:
-                    u = -shift / length
-                    if length < FRICTION_MAX * pushed.x:  # a contact about to let go: no f
-                        f = u * (length / pushed.x)
-    return w, n, u, r, f
-
-
-@ti.func
-def mobility_times(w, n, u, r, f, v):
-    """M^-1 v for a node of mobility (w, n, u, r, f) (node_mobility):
-    w ((I - n n^T) v - r (I - n n^T - u u^T) v + f (n . v)). A node held on a surface cannot
-    move along its normal: that part is the contact's reaction. A sliding node's friction takes
-    back r of its sideways move and f x that reaction off its slide: the derivative of
-    friction's placement. So the projection's Gauss-Newton steps see the contacts and their
-    friction (docs/model.md, "Collisions"), where alternating them with free-node steps
-    converged linearly. Not symmetric with friction: the projection's system is solved as
-    such."""
-    along = v.dot(n)
-    tangential = v - along * n
-    return w * ((1.0 - r) * tangential + r * tangential.dot(u) * u + along * f)
-
-
-@ti.func
-def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template(), friction=1):
-    """M_i^-1 v for node i of strand s (node_mobility, mobility_times)."""
-    w, n, u, r, f = node_mobility(s, i, fl, md, st, friction)
-    return mobility_times(w, n, u, r, f, v)
-
-
-@ti.func
-def edge_held(s, j, g, slide, fl: ti.template(), md: ti.template(), st: ti.template(), friction=1):
-    """Edge j's diagonal entry of G M^-1 G^T (G along g) with its contacts held
-    (inverse_mass_times) and the slider's share `slide`."""
-    return 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st, friction)
-                        + inverse_mass_times(s, j + 1, g, fl, md, st, friction))
-                  + slide)
-
-
-@ti.func
-def slider_share(s, j, n, g, b, fl: ti.template()):
-    """The slider's share (b . g)^2 of edge j's diagonal entry: the edge before the slider
-    (slider_vector b), 0 for the others."""
-    slide = 0.0
-    if ti.static(fl.clips):
-        if j == n - 3:
-            slide = b.dot(g) * b.dot(g)
-    return slide
-
-
-@ti.func
-def settle_holds(s, j, n, g, b, fl: ti.template(), md: ti.template(), st: ti.template(), friction=1):
-    """Let go of the holds that would keep edge j (direction g in G) from changing length: where
-    its diagonal entry of G M^-1 G^T with the holds falls under HOLD_BELOW of its free value,
-    its stuck nodes slide (collisions.SLID, the one farther from the root first), and if that
-    is not enough its contacts go free."""
-    slide = slider_share(s, j, n, g, b, fl)
-    w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
-    touching = st.history[s, j, CONTACT_NORMAL].norm_sqr() + st.history[s, j + 1, CONTACT_NORMAL].norm_sqr()
-    if touching > 0.0 and (w > 0.0 or slide > 0.0):
-        free = 4.0 * (g.dot(g) * w + slide)
-        held = edge_held(s, j, g, slide, fl, md, st, friction)
-        for i in ti.static((1, 0)):
-            if held < HOLD_BELOW * free and friction and stuck(s, j + i, fl, st):
-                st.history[s, j + i, FRICTION_PUSH].z = SLID
-                held = edge_held(s, j, g, slide, fl, md, st)
-        if held < HOLD_BELOW * free:
-            st.history[s, j, CONTACT_NORMAL] = vec3(0.0)
-            st.history[s, j + 1, CONTACT_NORMAL] = vec3(0.0)
+def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
+    """M_i^-1 v: node i's inverse mass [1/kg] times v, with a node in contact (a collider pushed
+    it this step) unable to move along the contact normal n: w_i (I - n n^T) v. So the projection
+    slides contacts along their surfaces and its Gauss-Newton steps converge with contacts inside
+    (docs/model.md, "Collisions"), where alternating pushes with free-node steps converged
+    linearly."""
+    n = contact_normal(s, i, fl, st)
+    return md.inv_mass[s, i] * (v - v.dot(n) * n)
 
 
 @ti.func
@@ -193,13 +88,13 @@ def constraint_edge(s, j, e, shake, fl: ti.template(), st: ti.template()):
 
 @ti.func
 def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), st: ti.template(),
-                          dr: ti.template(), friction=1):
+                          dr: ti.template()):
     """One projection iteration: (G M^-1 G^T) dlambda = C(x) (tridiagonal, assembled in
     diag/upper/rhs by assemble_projection), x -= M^-1 G^T dlambda, G along constraint_edge;
     the correction is added to the step's displacement dx too (see strand_velocities). A
     slider's pair moves by -2 dlambda b (b . e) through the edge before it, along its axis only.
     An extensible edge's tension grows by the force 2 |e| dlambda / h^2 of this iteration."""
-    back_substitute(s, 0, n - 2, st.diag, st.upper, st.rhs)
+    thomas_solve(s, 0, n - 2, st.diag, st.upper, st.rhs)
     if ti.static(fl.stretch):
         for j in range(n - 1):
             st.tension[s, j] += 2.0 * edge(st.x, s, j, j + 1).norm() * st.rhs[s, j] / (h * h)
@@ -220,22 +115,16 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
             pull += st.rhs[s, i] * e
         if i > 0:
             pull -= st.rhs[s, i - 1] * e_before
-        w, n_i, u, r, f = node_mobility(s, i, fl, md, st, friction)
-        move = 2.0 * mobility_times(w, n_i, u, r, f, pull)
+        move = 2.0 * inverse_mass_times(s, i, pull, fl, md, st)
         if ti.static(fl.contacts):
             # a held contact's normal move, taken out of `move`, is the contact's reaction: into the
             # surface it is a push and adds to the step's pushes P (friction's budget,
             # collisions.resolve_contact); out of it, it takes back from P, and past P (a contact
-            # pushes, never pulls) the node goes free and moves out by the rest. What friction
-            # took off the node's move adds to the step's friction shift (all of a stuck node's
-            # move along the surface), and the next contact pass weighs it against the cone
+            # pushes, never pulls) the node goes free and moves out by the rest
+            n_i = contact_normal(s, i, fl, st)
             if n_i.norm_sqr() > 0.0:
-                free = 2.0 * md.inv_mass[s, i] * pull
-                along = free.dot(n_i)
-                pushed = st.history[s, i, FRICTION_PUSH].x - along
-                st.history[s, i, FRICTION_SHIFT] += move - (free - along * n_i)
+                pushed = st.history[s, i, FRICTION_PUSH].x - 2.0 * md.inv_mass[s, i] * pull.dot(n_i)
                 if pushed < 0.0:
-                    # (moved along the surface as the system solved for it assumed)
                     st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
                     move -= pushed * n_i
                     pushed = 0.0
@@ -251,7 +140,7 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
 
 @ti.func
 def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st: ti.template(),
-                        dr: ti.template(), restart=0, friction=1):
+                        dr: ti.template(), restart=0):
     """The projection's tridiagonal system G M^-1 G^T (diag, upper) and right-hand side C(x)
     (rhs), G along constraint_edge. An edge with both nodes held (a clip) is prescribed: its row
     is the identity with a zero right-hand side, outside the residual; with pins the diagonal is
@@ -266,47 +155,38 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
     res = 0.0
     turned = 0
     b = slider_vector(s, n, fl, dr)
-    e_next = edge(st.x, s, 0, 1)
-    g_next = constraint_edge(s, 0, e_next, shake, fl, st)
-    if ti.static(fl.contacts):
-        settle_holds(s, 0, n, g_next, b, fl, md, st, friction)
-    w0, n0, u0, r0, f0 = node_mobility(s, 0, fl, md, st, friction)
-    # the forward sweep of the tridiagonal solve runs here, row by row (back_substitute finishes
-    # it): the previous row's pivot, eliminated right-hand side and entries
-    pivot = 1.0
-    eliminated = 0.0
-    upper = 0.0
-    lower = 0.0
     for j in range(n - 1):
-        e, g = e_next, g_next
-        if j + 1 < n - 1:
-            e_next = edge(st.x, s, j + 1, j + 2)
-            g_next = constraint_edge(s, j + 1, e_next, shake, fl, st)
-            if ti.static(fl.contacts):
-                # the next edge's holds are settled before this row is written: its node j + 1
-                # enters this row, which must match the moves solve_inextensibility will make
-                settle_holds(s, j + 1, n, g_next, b, fl, md, st, friction)
-        w1, n1, u1, r1, f1 = node_mobility(s, j + 1, fl, md, st, friction)
-        slide = slider_share(s, j, n, g, b, fl)
-        diag = 1.0
-        floor = 0.0  # the least pivot kept (see below)
-        c = 0.0
+        e = edge(st.x, s, j, j + 1)
+        g = constraint_edge(s, j, e, shake, fl, st)
         w = md.inv_mass[s, j] + md.inv_mass[s, j + 1]
+        slide = 0.0  # the slider's share (b . g)^2 of the edge before it
+        if ti.static(fl.clips):
+            if j == n - 3:
+                slide = b.dot(g) * b.dot(g)
+        st.rhs[s, j] = 0.0
+        st.diag[s, j] = 1.0
         if w > 0.0 or slide > 0.0:
             l2 = md.rest_length[s, j] * md.rest_length[s, j]
             c = e.dot(e) - l2
-            diag = 4.0 * (g.dot(mobility_times(w0, n0, u0, r0, f0, g) + mobility_times(w1, n1, u1, r1, f1, g)) + slide)
-            if n0.norm_sqr() + n1.norm_sqr() > 0.0:
-                floor = HOLD_BELOW * 4.0 * (g.dot(g) * w + slide)
+            st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
+            if ti.static(fl.contacts):
+                held = 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st) + inverse_mass_times(s, j + 1, g, fl, md, st))
+                              + slide)
+                if held >= HOLD_BELOW * st.diag[s, j]:
+                    st.diag[s, j] = held
+                else:  # this edge cannot change length with its contacts held: they go free
+                    st.history[s, j, CONTACT_NORMAL] = vec3(0.0)
+                    st.history[s, j + 1, CONTACT_NORMAL] = vec3(0.0)
             if ti.static(fl.stretch):
                 length = ti.sqrt(e.dot(e))
                 rest = md.rest_length[s, j]
                 stretch = rest * (length + rest) / md.stiffness[s].w  # alpha / (2 |e|) [m^2/N]
                 c -= stretch * st.tension[s, j]
-                diag += 2.0 * length * stretch / (h * h)
+                st.diag[s, j] += 2.0 * length * stretch / (h * h)
             scaled = ti.abs(c) / l2
             if not scaled <= res:  # so that a NaN residual stays NaN and fails the tolerance
                 res = scaled
+            st.rhs[s, j] = c
             if ti.static(fl.shake):
                 if e.dot(g) < SHAKE_TURN_COS * ti.sqrt(e.dot(e) * g.dot(g)):
                     turned = ti.max(turned, 1)
@@ -316,25 +196,10 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
                     if not moved <= SHAKE_MOVE * predicted.norm() + SHAKE_MOVE_FLOOR * md.rest_length[s, j]:
                         turned = 2
             if ti.static(fl.pins):
-                diag *= 1.0 + HELD_DAMPING
-        if j > 0:
-            ratio = lower / pivot
-            diag -= ratio * upper
-            c -= ratio * eliminated
-        # Friction's holds can leave a node fewer directions than the edges at it (a sliding node
-        # between two stuck ones): a pivot of a row with contacts below HOLD_BELOW of the row's
-        # free value makes this iteration's step a damped one there rather than a near-singular
-        # one. (A free strand's small pivots are its own: a taut stretch between held nodes.)
-        pivot = ti.max(diag, floor)
-        eliminated = c
-        st.diag[s, j] = pivot
-        st.rhs[s, j] = eliminated
+                st.diag[s, j] *= 1.0 + HELD_DAMPING
         if j + 1 < n - 1:
-            # the entries coupling rows j and j + 1 through node j + 1: (j, j + 1) and (j + 1, j)
-            upper = -4.0 * g.dot(mobility_times(w1, n1, u1, r1, f1, g_next))
-            lower = -4.0 * g_next.dot(mobility_times(w1, n1, u1, r1, f1, g))
-            st.upper[s, j] = upper
-        w0, n0, u0, r0, f0 = w1, n1, u1, r1, f1
+            g_next = constraint_edge(s, j + 1, edge(st.x, s, j + 1, j + 2), shake, fl, st)
+            st.upper[s, j] = -4.0 * g.dot(inverse_mass_times(s, j + 1, g_next, fl, md, st))
     return res, turned
 
 
@@ -425,16 +290,13 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         it += 1
     if ti.static(fl.contacts):
         # friction that holds puts its nodes back in every iteration, so the alternation can
-        # stall with edges up to STALL_BELOW off; a few iterations of the lengths alone, with
-        # the contacts held on their surfaces without friction, finish them, moving held nodes
-        # by about that residual x their edge (docs/model.md, "Collisions"). Not further off:
-        # that would pull nodes into the colliders.
+        # stall with edges up to STALL_BELOW off; a few iterations of the lengths alone finish
+        # them, moving held nodes by about that residual x their edge (docs/model.md,
+        # "Collisions"). Not further off: that would pull nodes into the colliders.
         extra = 0
-        if res >= sc.projection_tol and res < STALL_BELOW:
-            res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr, 0, 0)
         while res >= sc.projection_tol and res < STALL_BELOW and extra < LENGTHS_AFTER_CONTACT:
-            solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr, 0)
-            res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr, 0, 0)
+            solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
+            res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
             extra += 1
             it += 1
     return it, res
