@@ -7,7 +7,7 @@ import taichi_hair as th
 
 
 def build() -> th.Scene:
-    head = th.Head.default()
+    head = th.Head.default(body="head")  # a turntable turns the whole model
     groom = th.scalp_groom(head.model, 400, style="wavy", length=0.4, n_nodes=40, wave_amplitude=0.01,
                            wave_wavelength=0.08, collider=head.distance_field(), seed=2)
     return th.Scene(

@@ -41,7 +41,7 @@ def _selection():
 
 def build() -> th.Scene:
     selection, _ = _selection()
-    return th.Scene(groom=th.Groom.from_polylines(selection.guides), head=th.Head.default(),
+    return th.Scene(groom=th.Groom.from_polylines(selection.guides), head=th.Head.default(body="head"),
                     material=th.Material(), motion=MOTION, drag=5e-4)
 
 

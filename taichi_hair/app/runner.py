@@ -164,7 +164,8 @@ BACKDROP = (0.32, 0.33, 0.35)  # sRGB: a neutral mid-dark grey, so that fine hai
 
 
 class FrameWriter:
-    """Renders one frame of hair (+ head mesh and its neck/shoulder capsules) with `render`,
+    """Renders one frame of hair (+ the head mesh and its neck capsule, turned with the head, and
+    the body: where it is, or turned with the head; Head.body_attached) with `render`,
     three-point lit, and writes it as a PNG."""
 
     def __init__(self, shot: Shot, scene):
@@ -176,6 +177,9 @@ class FrameWriter:
         model = head.model if head is not None else None
         self.capsules = [render.capsule_mesh(p0, p1, r) for p0, p1, r in
                          (model.capsules if model is not None else ())]
+        body = head.body if head is not None else None
+        self.body = render.Mesh(vertices=np.asarray(body[0]), faces=body[1]) if body is not None else None
+        self.body_turns = head is not None and head.body_attached == "head"
         self.settings = render.RenderSettings(supersample=shot.supersample)
         self.base = self._fitted(scene) if shot.eye is None else render.Camera(
             eye=tuple(shot.eye), target=tuple(shot.target), up=(0.0, 0.0, 1.0), fov_y=shot.fov_y,
@@ -221,6 +225,9 @@ class FrameWriter:
                                            faces=self.mesh[1]))
         for m in self.capsules:
             meshes.append(self.render.Mesh(vertices=m.vertices @ rotation.T + translation, faces=m.faces))
+        if self.body is not None:
+            meshes.append(self.render.Mesh(vertices=self.body.vertices @ rotation.T + translation, faces=self.body.faces)
+                          if self.body_turns else self.body)
         camera = self.camera(frame)
         view = np.asarray(camera.eye) - np.asarray(camera.target)
         lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))

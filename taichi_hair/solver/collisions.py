@@ -7,7 +7,7 @@ import taichi as ti
 from ..rods.arrays import mat_block, point, step_displacement, vec3, vec_block
 from ..rods.state import CONTACT_CLEARANCE, CONTACT_NORMAL, CONTACT_QUERY, FRICTION_PUSH, FRICTION_SHIFT
 from ..rods.linalg import rotate_rows, unrotate_rows
-from ..world.colliders import analytic_distance, grid_distance, sphere_distance
+from ..world.colliders import GRID_META_ROWS, analytic_distance, grid_distance, sphere_distance
 from ..world.forces import HAND
 
 
@@ -129,7 +129,7 @@ def plan_queries(s, n, n_analytic, st: ti.template()):
         c = st.history[s, i, CONTACT_CLEARANCE]
         reach = DISTANCE_SLOPE * (point(st.x, s, i) - st.history[s, i, CONTACT_QUERY]).norm()
         holder = held_by(s, i, st)
-        on_grid = holder == n_analytic + 1
+        on_grid = holder > n_analytic
         shapes = not (c.x > reach) or (holder != 0 and not on_grid)  # written so that NaN queries
         grid = not (c.z > reach) or on_grid
         if shapes or grid:
@@ -213,7 +213,7 @@ def in_contact(s, i, contact, d, margin, springs: ti.template(), md: ti.template
 @ti.func
 def held_by(s, i, st: ti.template()):
     """The collider holding node i of strand s in this step's projection: c + 1 for collider c
-    (the analytic ones, then the distance grid), -1 - k for hand k, 0 if none."""
+    (the analytic ones, then the distance grids), -1 - k for hand k, 0 if none."""
     contact = 0
     if st.history[s, i, CONTACT_NORMAL].norm_sqr() > 0.0:
         contact = ti.cast(st.history[s, i, FRICTION_PUSH].y, ti.i32)
@@ -297,13 +297,16 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     # the strand keeps that collider (see root_keeps_collider). One distance query per node and
     # collider, the root's included: a separate root query doubled the contact code that every
     # kernel using it compiles (twice in the implicit step's).
-    # The analytic colliders c < n_analytic, then the distance grid (fl.mesh) as c = n_analytic,
+    # The analytic colliders c < n_analytic, then the distance grids (fl.mesh) as c = n_analytic + g,
     # in one loop: the contact and its friction (contact_with_friction, place_contact) are
     # inlined once, not once per kind of collider. Each copy of them was a large share of the
     # implicit step's compile time (its kernel holds this function twice).
     if ti.static(not springs):
         plan_queries(s, md.node_count[s], n_analytic, st)
-    for c in range(n_analytic + ti.static(1 if fl.mesh else 0)):
+    n_grids = 0
+    if ti.static(fl.mesh):
+        n_grids = co.sdf_meta.shape[0] // GRID_META_ROWS
+    for c in range(n_analytic + n_grids):
         on_head = 0
         margin = 0.0
         friction = 0.0
@@ -311,10 +314,11 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             on_head = ti.cast(co.params[c][3] > 0.5, ti.i32)
             margin = co.params[c][1]
             friction = co.params[c][2]
-        else:  # sdf_meta: origin [m], (spacing [m], margin [m], friction), (on head 1/0, 0, 0)
-            on_head = ti.cast(co.sdf_meta[2][0] > 0.5, ti.i32)
-            margin = co.sdf_meta[1][1]
-            friction = co.sdf_meta[1][2]
+        else:  # sdf_meta (colliders.GRID_META_ROWS): (spacing, margin, friction), (on head 1/0, ...)
+            row = GRID_META_ROWS * (c - n_analytic)
+            on_head = ti.cast(co.sdf_meta[row + 2][0] > 0.5, ti.i32)
+            margin = co.sdf_meta[row + 1][1]
+            friction = co.sdf_meta[row + 1][2]
         group = SHAPES
         if c >= n_analytic:
             group = GRID
@@ -328,7 +332,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 d, n = analytic_distance(co.kinds[c], co.geometry[c, 0], co.geometry[c, 1], co.params[c][0], local)
             else:
                 if ti.static(fl.mesh):
-                    d, n = grid_distance(co.sdf, co.sdf_meta[0], co.sdf_meta[1][0], local)
+                    d, n = grid_distance(co.sdf, co.sdf_meta, c - n_analytic, local)
             note_clearance(s, i, d, margin, group, springs, st)  # a root held inside stays queried
             if i == 0 and d < -margin:
                 break

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..rods import arrays
-from ..world.colliders import MeshCollider, pack_colliders
+from ..world.colliders import MeshCollider, pack_colliders, pack_grids
 from ..world.forces import N_GUSTS, N_MODES, Wind, touch_table
 
 MAX_STEPS_PER_LAUNCH = 256  # bounds the per-launch buffers of head poses and tool positions
@@ -20,7 +20,8 @@ class Control:
     head: [K+1, 4] vec3 head poses (rows of R, then t [m]); loads: [2] vec3 (gravity [m/s^2],
     mean wind [m/s]); gusts [N_GUSTS] and modes [N_MODES, 3] vec3 wind tables; drag [N s/m per
     metre]; user_force [S, N] vec3 [N] or None; kinds/geometry/params: analytic colliders;
-    sdf [nx, ny, nz] m and sdf_meta [3] vec3 (origin, (spacing, margin, friction), (on head, 0, 0));
+    sdf [NX, NY, NZ] m and sdf_meta [4 G] vec3: the G mesh colliders' distance grids
+    (colliders.pack_grids);
     tools [T] vec4 and tool_points [K+1, T] vec3; max_speed [m/s]; first_step: the index of the
     launch's first (sub)step since t = 0 (the kernels take time as index x step, never as a sum
     carried from launch to launch, so the grouping of steps into launches changes nothing)."""
@@ -52,16 +53,8 @@ def build_control(gravity, wind, drag, colliders, touch, max_speed) -> tuple[Con
     else:
         gusts, modes = np.zeros((N_GUSTS, 3)), np.zeros((N_MODES, 3, 3))
     meshes = [c for c in colliders if isinstance(c, MeshCollider)]
-    if len(meshes) > 1:
-        raise ValueError(f"colliders may hold at most one MeshCollider (the head), got {len(meshes)}")
     n_analytic, kinds, geometry, params = pack_colliders(colliders)
-    if meshes:
-        grid = meshes[0].grid
-        sdf = np.asarray(grid.values, dtype=np.float64)
-        meta = np.array([grid.origin, [grid.spacing, meshes[0].margin, meshes[0].friction],
-                         [1.0 if meshes[0].attached == "head" else 0.0, 0.0, 0.0]], dtype=np.float64)
-    else:
-        sdf, meta = np.ones((2, 2, 2)), np.zeros((3, 3))
+    sdf, meta = pack_grids(meshes)
     tool_params, _ = touch_table(touch, [])
     identity = np.vstack([np.eye(3), np.zeros((1, 3))])
     control = Control(
@@ -71,7 +64,7 @@ def build_control(gravity, wind, drag, colliders, touch, max_speed) -> tuple[Con
         drag=float(drag), user_force=None,
         kinds=arrays.ints(kinds.shape, kinds), geometry=arrays.vectors(3, geometry.shape[:2], geometry),
         params=arrays.vectors(4, params.shape[:1], params),
-        sdf=arrays.scalars(sdf.shape, sdf), sdf_meta=arrays.vectors(3, (3,), meta),
+        sdf=arrays.scalars(sdf.shape, sdf), sdf_meta=arrays.vectors(3, (max(len(meta), 1),), meta if len(meta) else None),
         tools=arrays.vectors(4, tool_params.shape[:1], tool_params),
         tool_points=arrays.vectors(3, (MAX_STEPS_PER_LAUNCH + 1, tool_params.shape[0])),
         max_speed=float(max_speed))

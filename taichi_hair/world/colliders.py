@@ -165,25 +165,49 @@ def safe_normal(q, fallback):
     return result
 
 
-@ti.func
-def grid_value(values: ti.template(), i, j, k):
-    nx, ny, nz = values.shape[0], values.shape[1], values.shape[2]
-    return values[ti.math.clamp(i, 0, nx - 1), ti.math.clamp(j, 0, ny - 1), ti.math.clamp(k, 0, nz - 1)]
+# sdf_meta rows per distance grid (pack_grids): origin [m]; (spacing [m], margin [m], friction);
+# (attached to head 1/0, first z index in the packed values, 0); (nx, ny, nz)
+GRID_META_ROWS = 4
 
 
 @ti.func
-def grid_distance(values: ti.template(), origin, spacing, p):
-    """Trilinear signed distance [m] and unit gradient of a distance grid at p (clamped to the
-    grid's box: outside it, the box's boundary values, which are positive by construction)."""
+def grid_distance(values: ti.template(), meta: ti.template(), g, p):
+    """Trilinear signed distance [m] and unit gradient of distance grid g of the packed grids
+    (values, meta: pack_grids) at p (clamped to the grid's box: outside it, the box's boundary
+    values, which are positive by construction)."""
+    row = GRID_META_ROWS * g
+    origin, spacing = meta[row], meta[row + 1][0]
+    offset = ti.cast(meta[row + 2][1], ti.i32)
+    top = ti.cast(meta[row + 3], ti.i32) - 1  # the largest index along each axis
     base, f = grid_cell((p - origin) / spacing)
     d = 0.0
     grad = vec3(0.0)
     for c in ti.static(ti.grouped(ti.ndrange(2, 2, 2))):
         w = corner_factors(c, f)
-        value = grid_value(values, base[0] + c[0], base[1] + c[1], base[2] + c[2])
+        value = values[ti.math.clamp(base[0] + c[0], 0, top[0]), ti.math.clamp(base[1] + c[1], 0, top[1]),
+                       offset + ti.math.clamp(base[2] + c[2], 0, top[2])]
         d += w[0] * w[1] * w[2] * value
         grad += value * corner_signs(c) * vec3(w[1] * w[2], w[0] * w[2], w[0] * w[1])
     return d, safe_normal(grad, vec3(0.0, 0.0, 1.0))
+
+
+def pack_grids(meshes):
+    """Kernel arrays for the mesh colliders' distance grids: values [NX, NY, NZ] m, the grids side
+    by side along z (grid g from its meta's z offset), and meta [GRID_META_ROWS x G] vec3
+    (GRID_META_ROWS). No grid: a 2 x 2 x 2 placeholder and empty meta."""
+    if not meshes:
+        return np.ones((2, 2, 2)), np.zeros((0, 3))
+    shapes = np.array([np.asarray(m.grid.values).shape for m in meshes])
+    values = np.ones((shapes[:, 0].max(), shapes[:, 1].max(), shapes[:, 2].sum()))
+    meta = np.zeros((GRID_META_ROWS * len(meshes), 3))
+    offset = 0
+    for g, (m, shape) in enumerate(zip(meshes, shapes)):
+        values[: shape[0], : shape[1], offset: offset + shape[2]] = m.grid.values
+        meta[GRID_META_ROWS * g: GRID_META_ROWS * (g + 1)] = [
+            m.grid.origin, [m.grid.spacing, m.margin, m.friction],
+            [1.0 if m.attached == "head" else 0.0, offset, 0.0], shape]
+        offset += shape[2]
+    return values, meta
 
 
 def pack_colliders(colliders):

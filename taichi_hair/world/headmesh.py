@@ -191,15 +191,14 @@ def default_head(resolution: int = 4) -> HeadModel:
     """The project's stylised human head (see the module docstring for axes and sizes).
 
     resolution: icosphere subdivisions, 2..6: 20 4^n faces (4: 5,120 faces, ~7 mm edges;
-    5: 20,480 faces, ~3.5 mm edges). capsules: the neck, from inside the head down to the
-    shoulders (radius 0.055 m), and the shoulders across (radius 0.06 m).
+    5: 20,480 faces, ~3.5 mm edges). capsules: the neck, from inside the head down into the
+    bust below it (radius 0.055 m; taichi_hair.world.bust).
     """
     if not (isinstance(resolution, (int, np.integer)) and 2 <= resolution <= 6):
         raise ValueError(f"resolution must be an integer subdivision count in [2, 6], got {resolution!r}")
     u, faces = icosphere(int(resolution))
     vertices = head_surface(u)
-    capsules = (((0.0, -0.015, -0.05), (0.0, -0.03, -0.22), 0.055),
-                ((-0.17, -0.03, -0.26), (0.17, -0.03, -0.26), 0.06))
+    capsules = (((0.0, -0.015, -0.05), (0.0, -0.03, -0.22), 0.055),)
     return HeadModel(vertices=vertices, faces=faces, scalp=scalp_mask(vertices), capsules=capsules)
 
 

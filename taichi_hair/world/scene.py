@@ -5,10 +5,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere, host_distance
+from .colliders import ATTACHMENTS, Capsule, Ellipsoid, MeshCollider, Plane, Sphere, host_distance
 from ..rods.groom import Groom
 from ..rods.materials import Material, per_strand_materials
 from ..rods.modes import Integrator, Projection, Root, Strain
+from ..validation import choice
 from .options import (ENVIRONMENT_KEYWORDS, SCENE_DRAG, SOLVER_KEYWORDS, Environment, SolverOptions,
                       split_keywords)
 
@@ -20,24 +21,31 @@ COLLIDERS = (Sphere, Ellipsoid, Capsule, Plane, MeshCollider)
 @dataclass(frozen=True, kw_only=True)
 class Head:
     """A rigid head: colliders (in head coordinates when attached="head", else world) and
-    optionally its triangle mesh (vertices [V, 3] m, faces [F, 3]) for rendering, and the
-    `HeadModel` it came from (scalp marks, for growing roots)."""
+    optionally its triangle mesh (vertices [V, 3] m, faces [F, 3]) for rendering, the
+    `HeadModel` it came from (scalp marks, for growing roots), and a body mesh (vertices [V, 3]
+    m, faces [F, 3]: the default head's bust) in the coordinates of `body_attached`: "world"
+    (drawn where it is while the head turns on it) or "head" (turned with the head, as on a
+    turntable); its collider, if any, is one of `colliders`, attached the same way."""
 
     colliders: tuple = ()
     mesh: tuple | None = None
     model: object = None
+    body: tuple | None = None
+    body_attached: str = "world"
 
     def __post_init__(self):
         for k, c in enumerate(self.colliders):
             if not isinstance(c, COLLIDERS):
                 raise ValueError(f"head.colliders[{k}] must be a Sphere, Ellipsoid, Capsule, Plane or "
                                  f"MeshCollider, got {type(c).__name__}")
-        if self.mesh is not None:
-            vertices, faces = (np.asarray(a) for a in self.mesh)
-            if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-                raise ValueError("head.mesh must be (vertices [V, 3], faces [F, 3])")
-            if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-                raise ValueError("head.mesh faces index vertices out of range")
+        choice("body_attached", self.body_attached, ATTACHMENTS)
+        for name in ("mesh", "body"):
+            if getattr(self, name) is not None:
+                vertices, faces = (np.asarray(a) for a in getattr(self, name))
+                if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+                    raise ValueError(f"head.{name} must be (vertices [V, 3], faces [F, 3])")
+                if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+                    raise ValueError(f"head.{name} faces index vertices out of range")
 
     def distance_field(self):
         """The head's colliders as one host-side distance field (object with sample(points [M, 3])
@@ -57,19 +65,27 @@ class Head:
         return cls(colliders=(Ellipsoid(centre=centre, radii=radii, margin=margin, friction=friction),))
 
     @classmethod
-    def default(cls, margin: float = 0.002, friction: float = 0.3, spacing: float = 0.004) -> "Head":
+    def default(cls, margin: float = 0.002, friction: float = 0.3, spacing: float = 0.004,
+                body: str = "world") -> "Head":
         """The project's own head mesh (taichi_hair.world.headmesh) as a distance-grid collider riding
-        on the head; its neck capsule turns with the head (a shake turns the neck too), the
-        shoulder capsules stay with the body (world)."""
+        on the head, with its neck capsule, which turns with the head (a shake turns the neck
+        too), on the bust (taichi_hair.world.bust: neck, shoulders and chest, one smooth mesh),
+        drawn as it is and colliding through its own distance grid. body: "world", the bust
+        stays where it is while the head shakes or nods on it; "head", it turns with the head
+        (a turntable shot turns the whole model)."""
+        choice("body", body, ATTACHMENTS)
+        from .bust import default_bust, default_bust_grid
         from .headmesh import default_head
         from .sdf import SignedDistanceGrid
         model = default_head()
         grid = SignedDistanceGrid.from_mesh(model.vertices, model.faces, spacing=spacing)
         colliders = [MeshCollider(grid=grid, margin=margin, friction=friction, attached="head")]
         colliders += [Capsule(p0=tuple(p0), p1=tuple(p1), radius=float(r), margin=margin,
-                              friction=friction, attached="head" if k == 0 else "world")
-                      for k, (p0, p1, r) in enumerate(model.capsules)]
-        return cls(colliders=tuple(colliders), mesh=(model.vertices, model.faces), model=model)
+                              friction=friction, attached="head") for p0, p1, r in model.capsules]
+        colliders.append(MeshCollider(grid=default_bust_grid(), margin=margin, friction=friction,
+                                      attached=body))
+        return cls(colliders=tuple(colliders), mesh=(model.vertices, model.faces), model=model,
+                   body=default_bust(), body_attached=body)
 
 
 class ColliderUnion:
