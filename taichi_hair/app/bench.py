@@ -190,7 +190,7 @@ def format_table(result: dict) -> str:
 def main(args) -> int:
     if args.cosseratbench:  # optional extra: imported only when asked for
         try:
-            from .cosseratbench_plugin import bench_main
+            from .cosseratbench_compare import bench_main
         except ModuleNotFoundError as err:
             raise ValueError(f"--cosseratbench needs the bench extra ({err.name} is missing): "
                              f"pip install 'taichi_hair[bench]'") from None

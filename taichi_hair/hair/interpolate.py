@@ -8,16 +8,16 @@ edges and the guides' rest frames (see `Interpolator`).
 Per frame (Taichi, ndarray arguments so each kernel compiles once per process; the head pose
 travels as a [4] vec3 ndarray, rows of R then t, never as a scalar matrix argument, whose
 type could be fixed at float32 before `taichi_hair.init` chose the precision):
-  1. `_guide_frames`: Bishop frame of every guide edge by parallel transport from the root
+  1. `guide_frames`: Bishop frame of every guide edge by parallel transport from the root
      (one thread per guide: the transport is serial along the strand).
-  2. `_dense_nodes`: one thread per dense strand: barycentric interpolation of the three guides'
+  2. `dense_nodes`: one thread per dense strand: barycentric interpolation of the three guides'
      root-relative shapes, clump interpolation (one guide plus an offset carried in its Bishop
      frame, so it follows the guide's bending and twist), the per-strand blend of both, and
      frizz growing toward the tip.
-     With rest shapes (an imported style), `_dense_from_edges` replaces it: one thread per
+     With rest shapes (an imported style), `dense_from_edges` replaces it: one thread per
      dense strand: each rest edge turned by the rotations of the same edge of its guides (the
      clump guide and the triangle's three, blended) and laid end to end from the root.
-  3. `_push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
+  3. `push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
      out along the surface normal (only when the head is a sphere or ellipsoid).
 
 Positions are metres; arrays are [strand, node, xyz]; node 0 is the root.
@@ -29,205 +29,12 @@ import time
 import numpy as np
 import taichi as ti
 
-from ..rods.frames import parallel_transport
-from ..rods.linalg import rotate_rows, unrotate_rows
 from ..runtime import ensure_init, precision
-from ..validation import choice, is_real
+from .interpolate_inputs import check_head, check_rest, check_rotation, check_setup, strand_variation
+from .interpolate_kernels import (dense_from_edges, dense_nodes, guide_frames, ivec5, push_out_of_ellipsoid,
+                                  vec3)
 from .scalp import (ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
-
-MODES = ("barycentric", "clump", "blend")
-
-vec2 = ti.math.vec2
-vec3 = ti.math.vec3
-ivec5 = ti.types.vector(5, ti.i32)  # integer element types do not depend on the float precision
-Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)
-Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)
-Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # `float` resolves when the kernel compiles
-
-
-# ---------------------------------------------------------------- per-frame kernels
-
-@ti.func
-def _rotate(head: ti.template(), v):
-    """R v for the head pose head[0..2] = rows of R (head[3] = t is not used)."""
-    return rotate_rows(head[0], head[1], head[2], v)
-
-
-@ti.func
-def _unrotate(head: ti.template(), v):
-    """R^T v for the head pose head[0..2] = rows of R."""
-    return unrotate_rows(head[0], head[1], head[2], v)
-
-
-@ti.kernel
-def _guide_frames(x: Vec3s2, normal: Vec3s1, u_rest: Vec3s1, head: Vec3s1, t_out: Vec3s2, u_out: Vec3s2):
-    """Bishop frame (t^j, u^j) of every guide edge j: u^0 is the rest reference u (carried by the
-    head rotation, head [4] = rows of R then t) transported from the root normal to t^0, then
-    edge to edge. One thread per guide; the transport is serial along its strand."""
-    for g in range(x.shape[0]):
-        t_prev, u = _rotate(head, normal[g]), _rotate(head, u_rest[g])
-        for j in range(x.shape[1] - 1):
-            e = x[g, j + 1] - x[g, j]
-            t = t_prev
-            if e.norm() > 1e-12:  # a zero-length edge keeps the previous tangent
-                t = e.normalized()
-            u = parallel_transport(u, t_prev, t)
-            u = (u - u.dot(t) * t).normalized()  # round-off drift off the normal plane
-            t_out[g, j], u_out[g, j] = t, u
-            t_prev = t
-
-
-@ti.func
-def _at(x: ti.template(), g, q):
-    """Position on guide g at fractional node index q (linear between nodes)."""
-    k = ti.min(ti.cast(ti.floor(q), ti.i32), x.shape[1] - 2)
-    f = q - k
-    return (1.0 - f) * x[g, k] + f * x[g, k + 1]
-
-
-@ti.func
-def _edge(q, n_nodes):
-    """Edge whose frame carries node position q: the edge arriving at q (edge 0 at the root)."""
-    return ti.math.clamp(ti.cast(ti.ceil(q), ti.i32) - 1, 0, n_nodes - 2)
-
-
-@ti.func
-def _hash01(key, i):
-    """Two uniform numbers in [-1, 1) from (strand key, node), fixed across frames."""
-    h = ti.cast(key, ti.u32) * ti.u32(0x9E3779B1) + ti.cast(i, ti.u32)
-    out = vec2(0.0)
-    for k in ti.static(range(2)):
-        h = (h ^ (h >> 16)) * ti.u32(0x7FEB352D)
-        h = (h ^ (h >> 15)) * ti.u32(0x846CA68B)
-        h = h ^ (h >> 16)
-        out[k] = ti.cast(ti.cast(h >> 8, ti.i32), float) / 8388608.0 - 1.0
-    return out
-
-
-@ti.kernel
-def _dense_nodes(x: Vec3s2, t: Vec3s2, u: Vec3s2, idx: ti.types.ndarray(dtype=ivec5, ndim=1),
-                 w: Vec3s1, rel: Vec3s2, local: Vec3s1, par: Scalars2, head: Vec3s1, out: Vec3s2):
-    """Dense nodes out[d, i] [m]. idx[d] = (3 triangle guides, clump guide, frizz key); w[d] the
-    triangle weights; rel[d, k] = rest dense root - rest root of guide k (triangle, then clump);
-    local[d] the clump offset in the clump guide's rest root frame (u, v, normal);
-    par[d, :] = (blend, start node, node step, frizz amplitude [m], clump offset scale at the
-    tip); head [4] the head pose (rows of R, then t).
-    One thread per dense strand: the terms shared by its nodes are computed once, then the
-    nodes (independent of each other) in a loop."""
-    n = x.shape[1]
-    for d in range(out.shape[0]):
-        blend, q0, step, frizz, tip = par[d, 0], par[d, 1], par[d, 2], par[d, 3], par[d, 4]
-        k0, k1, k2, g, key = idx[d][0], idx[d][1], idx[d][2], idx[d][3], idx[d][4]
-        wd, off = w[d], local[d]
-        # each guide carries the dense root rigidly with the head from its own root
-        base_b = (wd[0] * (x[k0, 0] + _rotate(head, rel[d, 0]) - _at(x, k0, q0))
-                  + wd[1] * (x[k1, 0] + _rotate(head, rel[d, 1]) - _at(x, k1, q0))
-                  + wd[2] * (x[k2, 0] + _rotate(head, rel[d, 2]) - _at(x, k2, q0)))
-        j0 = _edge(q0, n)
-        # the root offset is subtracted as carried by the start frame, so node 0 is the root
-        base_c = (x[g, 0] + _rotate(head, rel[d, 3]) - _at(x, g, q0)
-                  - (off[0] * u[g, j0] + off[1] * t[g, j0].cross(u[g, j0]) + off[2] * t[g, j0]))
-        for i in range(n):
-            q = q0 + i * step
-            s = i / (n - 1.0)
-            xb = base_b + wd[0] * _at(x, k0, q) + wd[1] * _at(x, k1, q) + wd[2] * _at(x, k2, q)
-            j = _edge(q, n)
-            uj, tj = u[g, j], t[g, j]
-            vj = tj.cross(uj)
-            xc = base_c + _at(x, g, q) + (1.0 + (tip - 1.0) * s) * (off[0] * uj + off[1] * vj + off[2] * tj)
-            fz = vec3(0.0)
-            if frizz > 0.0:
-                noise = _hash01(key, i)
-                fz = frizz * s * s * (noise[0] * uj + noise[1] * vj)
-            out[d, i] = (1.0 - blend) * xb + blend * xc + fz
-
-
-@ti.func
-def _nearest_on_ellipsoid(p, r):
-    """Nearest point of the axis-aligned ellipsoid with semi-axes r to p (both in its frame):
-    x = p r^2 / (r^2 + s) with s the root of sum (p r / (r^2 + s))^2 = 1, by bisection."""
-    rmin = ti.min(r[0], r[1], r[2])
-    lo, hi = -rmin * rmin, 0.0
-    if ((p / r) ** 2).sum() > 1.0:
-        lo, hi = 0.0, ti.max(r[0], r[1], r[2]) * p.norm()
-    # each halving gains a bit: 30 take the bracket (at most the head's size squared) below
-    # float32's resolution of the root, float64 needs 60
-    for _ in range(ti.static(30 if precision() == "float32" else 60)):
-        mid = 0.5 * (lo + hi)
-        if ((p * r / (r * r + mid)) ** 2).sum() > 1.0:
-            lo = mid
-        else:
-            hi = mid
-    y = p * r * r / (r * r + 0.5 * (lo + hi))
-    # on the medial axis the root escapes the bracket: scale back onto the surface
-    return y / ti.sqrt(((y / r) ** 2).sum())
-
-
-@ti.kernel
-def _push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
-    """Move non-root nodes closer than the margin to the ellipsoid to its surface point + margin
-    along the normal. shape [3] = (rest centre [m], semi-axes [m] along the rest axes, (margin
-    [m], 0, 0)); the head pose head [4] (rows of R, then t) carries centre and axes.
-    One thread per (strand, node)."""
-    radii, margin = shape[1], shape[2][0]
-    centre = _rotate(head, shape[0]) + head[3]
-    reach = ti.max(radii[0], radii[1], radii[2]) + margin
-    # the ellipsoid grown by the margin lies inside the ellipsoid scaled by 1 + margin / (its
-    # least semi-axis) (support functions: h(u) + margin <= h(u) (1 + margin / r_min)), so a
-    # node outside that one (with room for rounding) needs no nearest-point search
-    grown = (1.0 + margin / ti.min(radii[0], radii[1], radii[2])) * radii
-    for d, i in ti.ndrange(out.shape[0], out.shape[1]):
-        rel = out[d, i] - centre
-        if i > 0 and rel.norm() < reach:
-            p = _unrotate(head, rel)
-            if ((p / grown) ** 2).sum() > 1.0 + 1e-3:
-                continue
-            if p.norm() < 1e-9 * reach:  # the centre itself: leave along the shortest axis
-                rmin = ti.min(radii[0], radii[1], radii[2])
-                p = 1e-6 * reach * ti.cast(radii == rmin, float).normalized()
-            y = p * radii[0] / p.norm()  # sphere: closed form
-            if radii[0] != radii[1] or radii[1] != radii[2]:
-                y = _nearest_on_ellipsoid(p, radii)
-            inside = ((p / radii) ** 2).sum() < 1.0
-            dist = (p - y).norm() * ti.select(inside, -1.0, 1.0)
-            if dist < margin:
-                out[d, i] = centre + _rotate(head, y + margin * (y / (radii * radii)).normalized())
-
-
-@ti.func
-def _turned(e, t0, u0, t1, u1):
-    """e turned by the rotation taking the frame (u0, t0 x u0, t0) to (u1, t1 x u1, t1)."""
-    v0, v1 = t0.cross(u0), t1.cross(u1)
-    return e.dot(u0) * u1 + e.dot(v0) * v1 + e.dot(t0) * t1
-
-
-@ti.kernel
-def _dense_from_edges(x: Vec3s2, t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2,
-                      idx: ti.types.ndarray(dtype=ivec5, ndim=1), w: Vec3s1, rel: Vec3s2,
-                      par: Scalars2, head: Vec3s1, edges: Vec3s2, out: Vec3s2):
-    """Dense nodes out[d, i] [m] of strands with rest shapes: the root as in `_dense_nodes`, then
-    each rest edge edges[d, j] [m] turned by the rotation of edge j of each of its guides
-    (Bishop frame at rest t_rest, u_rest -> now t, u), blended with weights (1 - blend) w[d]
-    (triangle) and blend (clump guide), and rescaled to its rest length: inextensible, exact
-    at rest and rigid under a rigid head motion. One thread per dense strand, serial along it."""
-    for d in range(out.shape[0]):
-        blend, wd = par[d, 0], w[d]
-        weight = ti.Vector([(1.0 - blend) * wd[0], (1.0 - blend) * wd[1], (1.0 - blend) * wd[2], blend])
-        root = vec3(0.0)
-        for k in ti.static(range(4)):
-            root += weight[k] * (x[idx[d][k], 0] + _rotate(head, rel[d, k]))
-        out[d, 0] = root
-        g = idx[d][3]
-        for j in range(out.shape[1] - 1):
-            e = edges[d, j]
-            turned = vec3(0.0)
-            for k in ti.static(range(4)):
-                m = idx[d][k]
-                turned += weight[k] * _turned(e, t_rest[m, j], u_rest[m, j], t[m, j], u[m, j])
-            if turned.norm() < 1e-6 * e.norm():  # guides turned opposite ways: follow the clump
-                turned = _turned(e, t_rest[g, j], u_rest[g, j], t[g, j], u[g, j])
-            out[d, j + 1] = out[d, j] + turned * (e.norm() / turned.norm())
 
 
 # ---------------------------------------------------------------- the interpolator
@@ -271,14 +78,14 @@ class Interpolator:
                  curl_phase_variation=0.0, seed=0, head=None, head_margin=0.002,
                  rest_guides=None, rest_shapes=None):
         ensure_init()
-        roots, normals, dense = _check_setup(guide_roots, guide_normals, dense_roots, n_nodes)
+        roots, normals, dense = check_setup(guide_roots, guide_normals, dense_roots, n_nodes)
         self.n_guides, self.n_dense, self.n_nodes = len(roots), len(dense), int(n_nodes)
-        rest = _check_rest(rest_guides, rest_shapes, roots, dense, self.n_nodes)
+        rest = check_rest(rest_guides, rest_shapes, roots, dense, self.n_nodes)
         varied = frizz or length_variation or curl_phase_variation or clump_radius is not None
         if rest is not None and varied:
             raise ValueError("frizz, length_variation, curl_phase_variation and clump_radius must keep "
                              "their defaults with rest_shapes (the rest shapes fix every strand)")
-        self._head, self._ellipsoid = _check_head(head, head_margin)
+        self._head, self._ellipsoid = check_head(head, head_margin)
         self._dtype = np.float32 if precision() == "float32" else np.float64
         centre = None if self._ellipsoid is None else self._ellipsoid[0]
         chart = ScalpChart.fit(roots, normals, centre)
@@ -289,7 +96,7 @@ class Interpolator:
         tri_of, self.weights = locate(chart.project(dense, "dense_roots"), chart.project(roots),
                                       self.triangles)
         self.corners, self.guide_of = self.triangles[tri_of], nearest(dense, roots)
-        par, keys = _variation(self.n_dense, self.n_nodes, mode, blend, clump_radius, frizz,
+        par, keys = strand_variation(self.n_dense, self.n_nodes, mode, blend, clump_radius, frizz,
                                length_variation, curl_phase_variation, seed,
                                np.linalg.norm(dense - roots[self.guide_of], axis=1))
         self._upload_strands(roots, normals, dense, par, keys)
@@ -305,7 +112,7 @@ class Interpolator:
             self._fit_rest_edges(*rest)
 
     def _upload_strands(self, roots, normals, dense, par, keys):
-        """Upload the per-strand geometry and parameters (see `_dense_nodes`)."""
+        """Upload the per-strand geometry and parameters (see `dense_nodes`)."""
         d, g = self.n_dense, self.n_guides
         u_rest = perpendicular(normals)
         offset = dense - roots[self.guide_of]
@@ -326,7 +133,7 @@ class Interpolator:
         """Store the dense rest edges [D, n_nodes - 1] and the guides' rest Bishop frames."""
         g, n = self.n_guides, self.n_nodes
         self._t_rest, self._u_rest_frames = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
-        _guide_frames(self._guides_in(rest_guides), self._normal, self._u_rest, self._pose,
+        guide_frames(self._guides_in(rest_guides), self._normal, self._u_rest, self._pose,
                       self._t_rest, self._u_rest_frames)  # the pose is still the identity
         self._edges = _upload(np.diff(rest_shapes, axis=1), vec3, (self.n_dense, n - 1), self._dtype)
 
@@ -364,20 +171,20 @@ class Interpolator:
 
     def _run(self, guide_positions, out, head_rotation, head_translation):
         x = self._guides_in(guide_positions)
-        rot = _check_rotation(head_rotation)
+        rot = check_rotation(head_rotation)
         trans = np.zeros(3) if head_translation is None else np.asarray(head_translation, np.float64)
         if trans.shape != (3,) or not np.all(np.isfinite(trans)):
             raise ValueError(f"head_translation must be 3 finite numbers (m), got {head_translation!r}")
         self._pose.from_numpy(np.vstack([rot, trans]).astype(self._dtype))
-        _guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
+        guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
         if self._edges is None:
-            _dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
+            dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
                          self._pose, out)
         else:
-            _dense_from_edges(x, self._t, self._u, self._t_rest, self._u_rest_frames, self._idx,
+            dense_from_edges(x, self._t, self._u, self._t_rest, self._u_rest_frames, self._idx,
                               self._w, self._rel, self._par, self._pose, self._edges, out)
         if self._ellipsoid is not None:
-            _push_out_of_ellipsoid(out, self._pose, self._shape)
+            push_out_of_ellipsoid(out, self._pose, self._shape)
 
     def _collide_on_host(self, pts):
         moved = np.asarray(self._head(pts.reshape(-1, 3)), dtype=pts.dtype)
@@ -405,109 +212,6 @@ def _upload(array, dtype, shape, np_dtype):
     nd = ti.ndarray(dtype, shape)
     nd.from_numpy(np.ascontiguousarray(np.asarray(array).reshape(shape + (-1,)), dtype=np_dtype))
     return nd
-
-
-def _as_points(name, value, rows=None):
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3 or (rows is not None and len(arr) != rows):
-        raise ValueError(f"{name} must have shape [{'M' if rows is None else rows}, 3], got {list(arr.shape)}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got NaN or inf")
-    return arr
-
-
-def _check_setup(guide_roots, guide_normals, dense_roots, n_nodes):
-    roots = _as_points("guide_roots", guide_roots)
-    if len(roots) < 3:
-        raise ValueError(f"guide_roots must hold at least 3 guides, got {len(roots)}")
-    normals = _as_points("guide_normals", guide_normals, len(roots))
-    norm = np.linalg.norm(normals, axis=1, keepdims=True)
-    if np.any(norm < 1e-12):
-        raise ValueError("guide_normals must be non-zero vectors, got a zero normal")
-    dense = _as_points("dense_roots", dense_roots)
-    if len(dense) < 1:
-        raise ValueError("dense_roots must hold at least 1 root, got 0")
-    if not (isinstance(n_nodes, (int, np.integer)) and n_nodes >= 3):
-        raise ValueError(f"n_nodes must be an integer >= 3, got {n_nodes!r}")
-    return roots, normals / norm, dense
-
-
-def _check_rest(rest_guides, rest_shapes, roots, dense, n_nodes):
-    """(rest_guides [G, n, 3], rest_shapes [D, n, 3]) float64, or None when neither is given."""
-    if rest_guides is None and rest_shapes is None:
-        return None
-    if rest_guides is None or rest_shapes is None:
-        raise ValueError("rest_guides and rest_shapes must be given together (or neither), got "
-                         f"only {'rest_guides' if rest_shapes is None else 'rest_shapes'}")
-    out = []
-    for name, value, r in (("rest_guides", rest_guides, roots), ("rest_shapes", rest_shapes, dense)):
-        arr = np.asarray(value, dtype=np.float64)
-        if arr.shape != (len(r), n_nodes, 3):
-            raise ValueError(f"{name} must have shape [{len(r)}, {n_nodes}, 3], got {list(arr.shape)}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name} must be finite, got NaN or inf")
-        gap = np.linalg.norm(arr[:, 0] - r, axis=1).max()
-        if gap > 1e-6:
-            root_name = "guide_roots" if name == "rest_guides" else "dense_roots"
-            raise ValueError(f"{name}[:, 0] must be {root_name} (within 1e-6 m), got {gap:.3g} m away")
-        out.append(arr)
-    return out
-
-
-def _check_head(head, margin):
-    if not (is_real(margin) and math.isfinite(margin) and margin >= 0):
-        raise ValueError(f"head_margin must be a finite number >= 0 m, got {margin!r}")
-    if head is None or callable(head):
-        return head, None
-    try:
-        centre, radii = head
-        centre = np.asarray(centre, dtype=np.float64).reshape(3)
-        radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (3,)).copy()
-    except (TypeError, ValueError):
-        raise ValueError(f"head must be None, a callable or (centre [3] m, radius or radii [3] m), "
-                         f"got {head!r}") from None
-    if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(radii)) and np.all(radii > 0)):
-        raise ValueError(f"head centre must be finite and its radii > 0 m, got {centre}, {radii}")
-    return None, (centre, radii)
-
-
-def _check_rotation(rotation):
-    if rotation is None:
-        return np.eye(3)
-    rot = np.asarray(rotation, dtype=np.float64)
-    if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
-        raise ValueError(f"head_rotation must be a 3x3 rotation matrix (orthonormal, det +1), got {rotation!r}")
-    return rot
-
-
-def _variation(n_dense, n_nodes, mode, blend, clump_radius, frizz, length_variation,
-               curl_phase_variation, seed, offset_length):
-    """Per-strand parameters [D, 5] (see `_dense_nodes`) and frizz keys [D], all seeded."""
-    choice("mode", mode, MODES)
-    beta = np.asarray(blend, dtype=np.float64) if mode == "blend" else np.asarray(float(mode == "clump"))
-    beta = np.full(n_dense, beta) if beta.ndim == 0 else beta
-    if beta.shape != (n_dense,) or not np.all((beta >= 0) & (beta <= 1)):
-        raise ValueError(f"blend must be a scalar or an array [{n_dense}] with values in [0, 1], got {blend!r}")
-    for name, value, lo, hi, unit in (("frizz", frizz, 0.0, math.inf, "m"),
-                                      ("length_variation", length_variation, 0.0, 1.0, ""),
-                                      ("curl_phase_variation", curl_phase_variation, 0.0,
-                                       (n_nodes - 1) / 2, "edges")):
-        if not (is_real(value) and lo <= value <= hi and not (hi == 1.0 and value == 1.0)):
-            raise ValueError(f"{name} must be a number in [{lo:g}, {hi:g}{')' if hi == 1.0 else ']'} "
-                             f"{unit}, got {value!r}".replace(" ,", ","))
-    if clump_radius is not None and not (is_real(clump_radius) and 0 <= clump_radius < math.inf):
-        raise ValueError(f"clump_radius must be None or a finite number >= 0 m, got {clump_radius!r}")
-    rng = np.random.default_rng(seed)
-    u_len, u_phase, u_frizz = rng.random(n_dense), rng.random(n_dense), rng.random(n_dense)
-    keys = rng.integers(0, 2**31 - 1, n_dense)
-    phase = curl_phase_variation * u_phase
-    step = (1.0 - length_variation * u_len) * (n_nodes - 1 - phase) / (n_nodes - 1)
-    tip = np.ones(n_dense)
-    if clump_radius is not None:
-        tip = np.minimum(1.0, clump_radius / np.maximum(offset_length, 1e-12))
-    par = np.stack([beta, phase, step, frizz * (0.5 + u_frizz), tip], axis=1)
-    return par, keys
-
 
 # ---------------------------------------------------------------- small helpers and benchmark
 

@@ -1,11 +1,11 @@
 """The Simulator: rods (system.RodSystem) stepped by Kmoch's loop (the step package) under a control
 (head, air, colliders, touch, pins), with the stability bound and its substeps. Its records
-(stats, checkpoints, rollback on blow-up: sim_records.py) and its view of the rods (state in and
-out, energies: sim_rods.py) are mixins. Units: SI throughout.
+(stats, checkpoints, rollback on blow-up: sim_records.py), its view of the rods (state in and
+out, energies: sim_rods.py) and its start (groom placed, initial contacts, the bound of the start
+shape: sim_start.py) are mixins. Units: SI throughout.
 """
 
 import math
-import warnings
 
 import numpy as np
 
@@ -18,27 +18,22 @@ from ..validation import is_integer, is_real
 from ..world.forces import Grab, Wind
 from ..world.options import DEFAULT_PROJECTION_TOL, Environment, SolverOptions, split_keywords
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
-from ..world.colliders import host_distance
 from ..world.scene import Head
 from .checkpoint import pose_rows
-from .collisions import root_keeps_collider
 from .control import build_control, load_poses, load_tools
 from .drivers import StagedDriver, StrandContactDriver, choose_driver
 from .interaction import InteractionGrid
 from .pins import PinTable
 from .sim_records import Records
 from .sim_rods import RodAccess
-from .stability import (MEASURE_ABOVE, curvature_stiffening, default_stability_factor, rest_turns, scene_bound,
-                        stable_time_step, stiffest_mode_ratio, substeps_for)
+from .sim_start import StartSetup
+from .stability import default_stability_factor, scene_bound, substeps_for
 from .step.contact import SMALL_CONTACT_SCENE
 from .step.fused import place_roots
 from .step.implicit_launches import seed_history
-from .step.launch import project_once
-from .step.plan import FAILED_ABOVE, StepPlan
+from .step.plan import StepPlan
 from .strand_contact import contact_grid
 from .system import RodSystem
-
-INITIAL_PROJECTION_ROUNDS = 50  # projection calls at most to move a groom out of the colliders
 
 
 def _positive(name, value, unit, upper=math.inf):
@@ -48,7 +43,7 @@ def _positive(name, value, unit, upper=math.inf):
     return float(value)
 
 
-class Simulator(Records, RodAccess):
+class Simulator(Records, RodAccess, StartSetup):
     """Guide strands of `groom` made of `material` (one Material or one per strand).
 
     The options come as typed data (taichi_hair.world.options, docs/architecture.md "Options"):
@@ -262,13 +257,6 @@ class Simulator(Records, RodAccess):
     def _head_at(self, t: float):
         return check_rigid_transform(*self.root_motion(t))
 
-    def _place_groom(self, rotation, translation):
-        """Put the whole groom rigidly at the head's pose (used for the initial pose only)."""
-        self._head = self._head_prev = (rotation, translation)
-        x = self.groom.positions @ rotation.T + translation
-        self.state.x.from_numpy(x.astype(np.float64))
-        self._orient_roots(reference=True)
-
     def _orient_roots(self, reference=None):
         """Head poses loaded; root reference frames at the current head pose (root nodes
         untouched), unless the root is pinned: its reference is carried in time by the steps
@@ -277,92 +265,6 @@ class Simulator(Records, RodAccess):
         st, md = self.state, self.model
         if reference or (reference is None and not self.plan.carried_root_frame):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
-
-    def _colliders_holding_roots(self, colliders) -> list[tuple[int, int]]:
-        """(strand, collider index) pairs whose root starts inside the collider by more than its
-        margin: the contact stage skips them (collisions.root_keeps_collider), so say so once.
-        Head-attached colliders see the roots in head coordinates, world ones at the start pose."""
-        head_roots = self.groom.positions[:, 0]
-        world_roots = self.positions()[:, 0]
-        skipped = []
-        for k, c in enumerate(colliders):
-            roots = head_roots if c.attached == "head" else world_roots
-            depth = host_distance(c, roots)
-            skipped += [(int(s), k) for s in np.flatnonzero(~root_keeps_collider(depth, c.margin))]
-        if skipped:
-            kinds = sorted({type(colliders[k]).__name__ + f" (colliders[{k}])" for _, k in skipped})
-            warnings.warn(f"{len(skipped)} strand root(s) (first: strand {skipped[0][0]}) lie inside "
-                          f"{', '.join(kinds)} by more than its margin: those strands do not collide with "
-                          f"it (sim.skipped_colliders lists the pairs); move the roots onto the surface "
-                          f"to keep the hair out", RuntimeWarning, stacklevel=3)
-        return skipped
-
-    def _resolve_initial_contacts(self):
-        """Move groomed nodes that start inside a collider's margin out of it before the first
-        step, so the correction does not turn into a velocity kick (the push over one substep
-        would read as metres per second)."""
-        st, c = self.state, self.control
-        load_poses(c, np.stack([pose_rows(*self._head), pose_rows(*self._head)]))
-        load_tools(c, self.touch, np.full(2, self.time))
-        st.x_prev.copy_from(st.x)
-        # A strand groomed into the head may need many more iterations than one step allows;
-        # this runs once, so keep going (up to INITIAL_PROJECTION_ROUNDS calls) until it holds.
-        for _ in range(INITIAL_PROJECTION_ROUNDS):
-            st.residuals.fill(0.0)
-            project_once(self._bundles, self.plan, c)
-            residual = st.residuals.to_numpy()[:, 0]
-            if residual.max() <= self.plan.projection_tol:
-                break
-        stuck = np.flatnonzero(~(residual <= FAILED_ABOVE))
-        if len(stuck):
-            warnings.warn(f"{len(stuck)} strand(s) (first: {stuck[0]}) start inside a collider and "
-                          f"could not be moved out with their edge lengths kept (relative residual "
-                          f"{residual[stuck].max():.3g}); check the groom against the head",
-                          RuntimeWarning, stacklevel=3)
-        st.x_prev.copy_from(st.x)
-        self._reset_counters()
-
-    def _tighten_bound_to_start(self, strict):
-        """Contacts may have bent the groom at the start: the bound must hold for that shape too."""
-        x = self.positions()
-        start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
-        self.bound = self.bound.tightened(
-            stable_time_step(start, self.model.materials, self.control.drag, self.stability_factor,
-                             kmoch=self.twist == "kmoch", measured=self._measured_stiffening()),
-            "the shape the colliders left the groom in at the start (sharp bends)")
-        self.substeps = self._substeps(strict)
-
-    def _measured_stiffening(self) -> dict:
-        """{strand: EI_eff / EI} of the strands whose current shape the curvature rule charges
-        more than MEASURE_ABOVE: their stiffest bending mode (stiffest_mode_ratio) from central
-        differences of the elastic forces. Under the rotation measure only (the rule holds for
-        DER's rest shapes but not once they bend away), explicit step, twist not Kmoch's.
-        Positions and frames are as they were afterwards."""
-        if self.strain != "rotation" or self.twist == "kmoch" or self.integrator != "explicit":
-            return {}
-        counts = self.groom.node_counts
-        x0 = self.state.x.to_numpy()
-        if self._measured_for is not None and np.array_equal(self._measured_for[0], x0):
-            return self._measured_for[1]  # the start shape is the groom's: no collider moved a node
-        measured = self._stiffening_of(x0, counts)
-        self._measured_for = (x0, measured)
-        return measured
-
-    def _stiffening_of(self, x0, counts) -> dict:
-        """_measured_stiffening's answer at positions x0 [S, N, 3] m."""
-        strands = [s for s in range(len(counts))
-                   if curvature_stiffening(rest_turns(x0[s, : counts[s]])) > MEASURE_ABOVE]
-        if not strands:
-            return {}
-        h = 1e-4 * min(np.linalg.norm(np.diff(x0[s, : counts[s]], axis=0), axis=1).min() for s in strands)
-        hessian = self.rods.elastic_hessian(x0, strands, h)
-        mass = self.model.mass.to_numpy()
-        measured = {}
-        for k, s in enumerate(strands):
-            n, m = counts[s], self.model.materials[s]
-            measured[s] = stiffest_mode_ratio(x0[s, :n], mass[s, :n], hessian[k, : 3 * n, : 3 * n],
-                                              max(m.bending_stiffness), m.linear_density)
-        return measured
 
     def _substeps(self, strict) -> int:
         """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
