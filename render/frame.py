@@ -23,7 +23,8 @@ from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish
                      mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
                      unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
-from .fibre import shade_fibre_vertices, upload_tables
+from .fibre_lobes import upload_tables
+from .fibre_vertices import shade_fibre_vertices
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
 from . import tiles
