@@ -14,6 +14,10 @@ from .fibre_lobes import fasin, fexp, lobe_variance, sigma_coord
 # Zinke et al. 2008's density factors
 D_FORWARD, D_BACK = 0.7, 0.7
 
+# a fibre's dual-scattering constants per channel (`dual_constants`): forward variance
+# beta_f^2, backscattered energy A_b, its shift Delta_b [rad] and variance sigma_b^2, log a_f
+DualConstants = ti.types.struct(bf2=vec3f, a_back=vec3f, shift=vec3f, var_b=vec3f, log_af=vec3f)
+
 
 @ti.func
 def d_lookup(dtab: ti.template(), k: ti.i32, us: f32) -> f32:
@@ -44,17 +48,17 @@ def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: 
     directions to its energy (A_b, the albedo)."""
     v0 = lobe_variance(beta_m)
     us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
-    bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, alpha, dtab)
+    dc = dual_constants(us, v0, alpha, dtab)
     theta_o = fasin(ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0)))
-    return dual_scattering_c(t, l, v, v0, s, albedo, terms, bf2, a_back, shift, var_b, log_af,
-                             theta_o)
+    return dual_scattering_c(t, l, v, v0, s, albedo, terms, dc, theta_o)
 
 
 @ti.func
 def dual_constants(us: vec3f, v0: f32, alpha: f32, dtab: ti.template()):
-    """The fibre's dual-scattering constants per channel, from its absorption's table
-    coordinates us, lobe variance v0 and cuticle tilt alpha: forward variance beta_f^2,
-    backscattered energy A_b, its shift Delta_b and variance sigma_b^2, and log a_f."""
+    """The fibre's dual-scattering constants per channel (a DualConstants), from its
+    absorption's table coordinates us, lobe variance v0 and cuticle tilt alpha: forward
+    variance beta_f^2, backscattered energy A_b, its shift Delta_b and variance sigma_b^2, and
+    log a_f."""
     bf2_, a_back_, shift_, var_b_, log_af_ = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
                                               vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
                                               vec3f(0.0, 0.0, 0.0))
@@ -73,15 +77,15 @@ def dual_constants(us: vec3f, v0: f32, alpha: f32, dtab: ti.template()):
         bf2_[c] = bf2
         var_b_[c] = ti.max(sd_b * sd_b, f32(1e-4))
         log_af_[c] = ti.log(ti.max(af, f32(1e-6)))
-    return bf2_, a_back_, shift_, var_b_, log_af_
+    return DualConstants(bf2=bf2_, a_back=a_back_, shift=shift_, var_b=var_b_, log_af=log_af_)
 
 
 @ti.func
 def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: vec3f,
-                      terms: vec3f, bf2: vec3f, a_back: vec3f, shift: vec3f, var_b: vec3f,
-                      log_af: vec3f, theta_o: f32) -> vec3f:
-    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants`, and the
+                      terms: vec3f, dc: ti.template(), theta_o: f32) -> vec3f:
+    """`dual_scattering` with the fibre's `lobe_variance` v0 and `dual_constants` dc, and the
     view angle theta_o, given."""
+    bf2, a_back, shift, var_b, log_af = dc.bf2, dc.a_back, dc.shift, dc.var_b, dc.log_af
     n, vis = terms[0], terms[1]
     sin_i = ti.math.clamp(t.dot(l), f32(-1.0), f32(1.0))
     sin_o = ti.math.clamp(t.dot(v), f32(-1.0), f32(1.0))

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from .bundles import FibreTableArgs
 from .camera import f32, unit, vec3f, vec4f
 from .fibre import (N_PHI, N_SIGMA, N_THETA, SIGMA0, THETA_MAX, U_MAX, HairMaterial, dual_table,
                     fibre_tables)
@@ -268,6 +269,12 @@ def upload_tables(material: HairMaterial) -> tuple:
             devices.append(dev)
         _device_tables[key] = tuple(devices)
     return _device_tables[key]
+
+
+def table_args(material: HairMaterial) -> FibreTableArgs:
+    """The material's device tables (`upload_tables`) as one kernel argument."""
+    ntab, atab, dtab = upload_tables(material)
+    return FibreTableArgs(fibre_ntab=ntab, fibre_atab=atab, fibre_dtab=dtab)
 
 
 def fibre_scattering(material: HairMaterial, tangents, to_light, to_eye) -> dict:

@@ -3,37 +3,35 @@ single or dual scattering (`fibre_lobes`, `fibre_dual`)."""
 
 import taichi as ti
 
+from .bundles import FibreTableArgs, HairArgs, LightSetArgs
 from .camera import f32, unit, vec3f, vec4f
-from .fibre_dual import dual_constants, dual_scattering_c
+from .fibre_dual import DualConstants, dual_constants, dual_scattering_c
 from .fibre_lobes import fexp, fibre_constants, fibre_light, fibre_view, lobe_variance, sigma_coord
 
 
 @ti.kernel
-def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
-                         nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
-                         sigma: ti.types.ndarray(dtype=vec3f, ndim=1),
-                         beta_m: ti.types.ndarray(dtype=f32, ndim=1),
-                         n_chunks: ti.i32,
-                         n_lights: ti.i32, to_light: ti.types.ndarray(dtype=vec3f, ndim=1),
-                         irradiance: ti.types.ndarray(dtype=vec3f, ndim=1),
-                         terms: ti.types.ndarray(dtype=vec3f, ndim=2), opacity: f32,
-                         eye: vec3f, ambient: vec3f, dual: ti.i32, density: f32,
-                         shifts: ti.types.vector(8, ti.f32),
-                         ntab: ti.types.ndarray(dtype=f32, ndim=1),
-                         atab: ti.types.ndarray(dtype=f32, ndim=1),
-                         dtab: ti.types.ndarray(dtype=f32, ndim=1),
-                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                         rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
-    """rgba[i] = (linear radiance of vertex i under n_lights directional lights, light k from
-    direction to_light[k] with `irradiance[k]` [W/m^2], plus the uniform `ambient` radiance;
-    opacity). terms[k, i]: the vertex's (hair opacity towards light k, mesh visibility, hair
-    opacity behind it) from `shadows.shadow_terms`. dual: Zinke's dual scattering
-    (`fibre_dual.dual_scattering`); otherwise single scattering shadowed by exp(-density x opacity) x
-    visibility. Tangent from the strand neighbours (root to tip). The view's part of the
-    shading is computed once for all lights; the lights add in order after the first (with
-    the ambient), as separate passes would. masked: only vertices with mark[i] != 0 (the
-    others' rgba is left as it was). Shapes (V,). n_chunks threads, each over a run of
-    vertices."""
+def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: LightSetArgs,
+                         opacity: f32, eye: vec3f, ambient: vec3f, dual: ti.i32, density: f32,
+                         shifts: ti.types.vector(8, ti.f32), tables: FibreTableArgs,
+                         masked: ti.i32):
+    """rgba[i] = (linear radiance of vertex i under the K directional lights of `lights`,
+    light k from direction to_light[k] with `irradiance[k]` [W/m^2], plus the uniform
+    `ambient` radiance; opacity), from the hair's (HairArgs) positions, absorption sigma and
+    roughness beta_m and the fibre material's lobe tilts (`HairMaterial.shifts`) and device
+    tables (FibreTableArgs). terms[k, i]: the vertex's (hair opacity towards light k, mesh
+    visibility, hair opacity behind it) from `shadows.shadow_terms`. dual: Zinke's dual
+    scattering (`fibre_dual.dual_scattering`); otherwise single scattering shadowed by
+    exp(-density x opacity) x visibility. Tangent from the strand neighbours (root to tip). The
+    view's part of the shading is computed once for all lights; the lights add in order after
+    the first (with the ambient), as separate passes would. masked: only vertices with
+    mark[i] != 0 (the others' rgba is left as it was). Shapes (V,). n_chunks threads, each
+    over a run of vertices."""
+    x, nbr, sigma, beta_m, mark, rgba = ti.static(hair.hair_x, hair.hair_nbr, hair.hair_sigma,
+                                                  hair.hair_beta_m, hair.hair_mark, hair.hair_rgba)
+    to_light, irradiance, terms = ti.static(lights.light_to, lights.light_irradiance,
+                                            lights.light_terms)
+    ntab, atab, dtab = ti.static(tables.fibre_ntab, tables.fibre_atab, tables.fibre_dtab)
+    n_lights = to_light.shape[0]
     # consecutive vertices mostly belong to one strand and share its absorption and
     # roughness: each thread walks a run of vertices and recomputes the fibre's constants
     # (table coordinates, lobe constants, dual scattering's) only when they change; the same
@@ -42,9 +40,9 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
     for ch in range(n_chunks):
         sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
         us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
-        bf2, a_back, shift, var_b, log_af = (vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
-                                             vec3f(0.0, 0.0, 0.0), vec3f(0.0, 0.0, 0.0),
-                                             vec3f(0.0, 0.0, 0.0))
+        dc = DualConstants(bf2=vec3f(0.0, 0.0, 0.0), a_back=vec3f(0.0, 0.0, 0.0),
+                           shift=vec3f(0.0, 0.0, 0.0), var_b=vec3f(0.0, 0.0, 0.0),
+                           log_af=vec3f(0.0, 0.0, 0.0))
         for i in range(ch * chunk, ti.min(n, (ch + 1) * chunk)):
             if masked and mark[i] == 0:
                 continue
@@ -54,7 +52,7 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                 us = vec3f(sigma_coord(sg[0]), sigma_coord(sg[1]), sigma_coord(sg[2]))
                 v0 = lobe_variance(bm)
                 cv = fibre_constants(v0)
-                bf2, a_back, shift, var_b, log_af = dual_constants(us, v0, shifts[6], dtab)
+                dc = dual_constants(us, v0, shifts[6], dtab)
             t = unit(x[nbr[i][1]] - x[nbr[i][0]])
             v = unit(eye - x[i])
             vo, tilt, albedo, a3 = fibre_view(t, v, us, shifts, atab)
@@ -65,8 +63,7 @@ def shade_fibre_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
                 tm = terms[k, i]
                 f = s * (fexp(-density * tm[0]) * tm[1])
                 if dual:
-                    f = dual_scattering_c(t, l, v, v0, s, albedo, tm, bf2, a_back, shift,
-                                          var_b, log_af, vo[3])
+                    f = dual_scattering_c(t, l, v, v0, s, albedo, tm, dc, vo[3])
                 if k == 0:
                     c = irradiance[k] * f + ambient * albedo
                 else:
