@@ -6,7 +6,8 @@ whatever arch Taichi was initialised with; if nobody initialised it, the first r
 """
 
 from .camera import Camera, fit_camera
-from .fibre import HairMaterial, fibre_scattering
+from .fibre import HairMaterial
+from .fibre_lobes import fibre_scattering
 from .frame import RenderSettings, hair_shadow, render_buffers, render_frame
 from .geometry import Hair, Mesh, capsule_mesh
 from .runtime import init

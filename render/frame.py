@@ -23,7 +23,9 @@ from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish
                      mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
                      unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
-from .fibre import shade_fibre_vertices, upload_tables
+from .bundles import HairArgs, LightSetArgs, MeshArgs, MeshPixelArgs
+from .fibre_lobes import table_args
+from .fibre_vertices import shade_fibre_vertices
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
 from . import tiles
@@ -94,32 +96,38 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
         col, opacity = hair.vertex_colours, hair.opacity
         sigma, beta_m = hair.vertex_sigma, hair.vertex_beta_m
     nv = max(len(x), 1)
-    return dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
-                seg=upload("hair_seg", _padded(seg), ti.i32),
-                nbr=upload("hair_nbr", _padded(nbr), vec2i, 2),
-                colour=upload("hair_colour", _padded(col), vec3f, 3),
-                sigma=upload("hair_sigma", _padded(sigma), vec3f, 3),
-                beta_m=upload("hair_beta_m", _padded(beta_m), f32),
-                width_px=buffer("hair_width_px", f32, (nv,)),
-                screen=buffer("hair_screen", vec4f, (nv,), 4),
-                shadow=buffer("hair_shadow", f32, (nv,)),
-                rgba=buffer("hair_rgba", vec4f, (nv,), 4),
-                mark=buffer("hair_mark", ti.i32, (nv,)),
-                n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
+    hd = dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
+              seg=upload("hair_seg", _padded(seg), ti.i32),
+              nbr=upload("hair_nbr", _padded(nbr), vec2i, 2),
+              colour=upload("hair_colour", _padded(col), vec3f, 3),
+              sigma=upload("hair_sigma", _padded(sigma), vec3f, 3),
+              beta_m=upload("hair_beta_m", _padded(beta_m), f32),
+              width_px=buffer("hair_width_px", f32, (nv,)),
+              screen=buffer("hair_screen", vec4f, (nv,), 4),
+              shadow=buffer("hair_shadow", f32, (nv,)),
+              rgba=buffer("hair_rgba", vec4f, (nv,), 4),
+              mark=buffer("hair_mark", ti.i32, (nv,)))
+    hd["args"] = HairArgs(**{f"hair_{name}": array for name, array in hd.items()})
+    hd.update(n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
+    return hd
 
 
 def _upload_meshes(meshes) -> dict:
     m = merge_meshes(meshes)
     nv = max(len(m["x"]), 1)
-    return dict(x=upload("mesh_x", _padded(m["x"]), vec3f, 3),
-                normal=upload("mesh_n", _padded(m["normal"]), vec3f, 3),
-                colour=upload("mesh_colour", _padded(m["colour"]), vec3f, 3),
-                faces=upload("mesh_faces", _padded(m["faces"]), vec3i, 3),
-                material=upload("mesh_material", _padded(m["material"]), vec2f, 2),
-                width=upload("mesh_w", np.zeros(nv, np.float32), f32),
-                width_px=buffer("mesh_width_px", f32, (nv,)),
-                screen=buffer("mesh_screen", vec4f, (nv,), 4),
-                n_vertices=len(m["x"]), n_faces=len(m["faces"]))
+    md = dict(x=upload("mesh_x", _padded(m["x"]), vec3f, 3),
+              normal=upload("mesh_n", _padded(m["normal"]), vec3f, 3),
+              colour=upload("mesh_colour", _padded(m["colour"]), vec3f, 3),
+              faces=upload("mesh_faces", _padded(m["faces"]), vec3i, 3),
+              material=upload("mesh_material", _padded(m["material"]), vec2f, 2),
+              width=upload("mesh_w", np.zeros(nv, np.float32), f32),
+              width_px=buffer("mesh_width_px", f32, (nv,)),
+              screen=buffer("mesh_screen", vec4f, (nv,), 4),
+              n_vertices=len(m["x"]), n_faces=len(m["faces"]))
+    md["args"] = MeshArgs(mesh_screen=md["screen"], mesh_faces=md["faces"], mesh_x=md["x"],
+                          mesh_normal=md["normal"], mesh_albedo=md["colour"],
+                          mesh_material=md["material"])
+    return md
 
 
 @ti.kernel
@@ -163,21 +171,20 @@ def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
     """Kajiya-Kay: shade the hair vertices for one directional light (adding to earlier
     lights); masked: only the vertices marked in hd["mark"]."""
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
-    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0, smap.opacity,
-                         smap.bounds, smap.mesh_key, smap.params, int(masked), hd["mark"],
-                         hd["shadow"])
-    shade_hair_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["colour"], hd["shadow"],
-                        hd["opacity"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
-                        int(first), settings.hair_shading.packed(), int(masked), hd["mark"],
-                        hd["rgba"])
+    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
+                         smap.params, int(masked), hd["mark"], hd["shadow"])
+    shade_hair_vertices(hd["n_vertices"], hd["args"], hd["opacity"], eye, light.to_light,
+                        irradiance / np.float32(np.pi), ambient, int(first),
+                        settings.hair_shading.packed(), int(masked))
 
 
-def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, edges, settings,
-                  base, masked: bool = False):
-    """Per directional light: its shadow maps and the meshes' shading, adding up (the first
-    pass also writes the ambient term and the background), and the hair's shadow terms; then
-    the fibre shading of the hair under all lights in one pass (Kajiya-Kay: per light).
-    masked: shade only the hair vertices marked in hd["mark"]."""
+def _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
+                  masked: bool = False):
+    """Per directional light: its shadow maps and the meshes' shading into pixels.pixel_base
+    (pixels: the meshes' MeshPixelArgs), adding up (the first pass also writes the ambient
+    term and the background), and the hair's shadow terms; then the fibre shading of the hair
+    under all lights in one pass (Kajiya-Kay: per light). masked: shade only the hair vertices
+    marked in hd["mark"]."""
     passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
     fibre = settings.hair_model == "fibre" and hd["n_vertices"] > 0
     if fibre:
@@ -187,29 +194,26 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, edges, 
         smap = build_shadow_map(shadows, light.to_light, hd if hd["n_vertices"] else None,
                                 md if md["n_faces"] else None)
         irradiance = np.asarray(light.irradiance_rgb, np.float32)
+        sm = smap.args()
         # Lambert: radiance = albedo / pi x irradiance x cos
-        shade_mesh(mesh_key, *edges, md["screen"], md["faces"], md["x"], md["normal"], md["colour"],
-                   md["material"], eye, light.to_light, irradiance / np.float32(np.pi), ambient,
-                   bg, smap.view, smap.proj, smap.z0, smap.opacity, smap.bounds, smap.mesh_key,
-                   smap.params, int(k == 0), base)
+        shade_mesh(pixels, md["args"], eye, light.to_light, irradiance / np.float32(np.pi),
+                   ambient, bg, smap.view, smap.proj, sm, smap.params, int(k == 0))
         if fibre:
-            points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
-                                smap.opacity, smap.bounds, smap.mesh_key, smap.params,
+            points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, sm, smap.params,
                                 int(masked), hd["mark"], k, terms)
         elif hd["n_vertices"]:
             _shade_hair_kajiya_kay(hd, eye, light, ambient, k == 0, settings, smap, masked)
     if fibre:
-        material = hair.fibre
-        ntab, atab, dtab = upload_tables(material)
         to_light = np.array([light.to_light for light in passes], np.float32)
         irradiance = np.array([light.irradiance_rgb for light in passes], np.float32)
-        shade_fibre_vertices(hd["n_vertices"], hd["x"], hd["nbr"], hd["sigma"], hd["beta_m"],
-                             chunks(hd["n_vertices"], 4096, 32), len(passes),
-                             upload("hair_to_light", to_light, vec3f, 3),
-                             upload("hair_irradiance", irradiance, vec3f, 3), terms,
-                             hd["opacity"], eye, ambient, int(settings.multiple_scattering),
-                             np.float32(settings.shadows.density), material.shifts(), ntab,
-                             atab, dtab, int(masked), hd["mark"], hd["rgba"])
+        lights = LightSetArgs(light_to=upload("hair_to_light", to_light, vec3f, 3),
+                              light_irradiance=upload("hair_irradiance", irradiance, vec3f, 3),
+                              light_terms=terms)
+        shade_fibre_vertices(hd["n_vertices"], hd["args"], chunks(hd["n_vertices"], 4096, 32),
+                             lights, hd["opacity"], eye, ambient,
+                             int(settings.multiple_scattering),
+                             np.float32(settings.shadows.density), hair.fibre.shifts(),
+                             table_args(hair.fibre), int(masked))
 
 
 class _Buffers(NamedTuple):
@@ -274,8 +278,9 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
-    _light_passes(hd, md, hair, directional, ambient, bg, eye, mesh_key, (edge_index, sub_key),
-                  settings, base,
+    pixels = MeshPixelArgs(pixel_key=mesh_key, pixel_edge_index=edge_index, pixel_sub_key=sub_key,
+                           pixel_base=base)
+    _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
                   masked=bins is not None and tiles.CULL_HIDDEN)
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
@@ -314,7 +319,6 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     ensure_init()
     hd, md = _upload_hair(hair), _upload_meshes(list(meshes))
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
-    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.z0,
-                         smap.opacity, smap.bounds, smap.mesh_key, smap.params, 0, hd["mark"],
-                         hd["shadow"])
+    points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
+                         smap.params, 0, hd["mark"], hd["shadow"])
     return hd["shadow"].to_numpy()[: hd["n_vertices"]]

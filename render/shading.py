@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from .bundles import HairArgs, MeshArgs, MeshPixelArgs, ShadowMapArgs
 from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
-                     vec2f, vec3i)
+                     vec2f)
 from .runtime import buffer, ensure_init, upload
 from .shadows import transmittance
 
@@ -241,16 +242,14 @@ def shade_surface(n: vec3f, l: vec3f, v: vec3f, albedo: vec3f, light: vec3f, amb
 
 
 @ti.kernel
-def shade_hair_vertices(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
-                        nbr: ti.types.ndarray(dtype=ti.types.vector(2, ti.i32), ndim=1),
-                        albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
-                        shadow: ti.types.ndarray(dtype=f32, ndim=1), opacity: f32,
-                        eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, first: ti.i32,
-                        kk: vec8f, masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                        rgba: ti.types.ndarray(dtype=vec4f, ndim=1)):
+def shade_hair_vertices(n: ti.i32, hair: HairArgs, opacity: f32, eye: vec3f, to_light: vec3f,
+                        light: vec3f, ambient: vec3f, first: ti.i32, kk: vec8f, masked: ti.i32):
     """rgba[i] (+)= (linear radiance of vertex i under one key light, plus the ambient when
-    `first`, opacity). Tangent from the strand neighbours. masked: only vertices with
+    `first`, opacity), with the hair's (HairArgs) colour as albedo and its key light
+    transmittance `shadow`. Tangent from the strand neighbours. masked: only vertices with
     mark[i] != 0. Shapes (V,). One thread per vertex."""
+    x, nbr, albedo, shadow, mark, rgba = ti.static(hair.hair_x, hair.hair_nbr, hair.hair_colour,
+                                                   hair.hair_shadow, hair.hair_mark, hair.hair_rgba)
     for i in range(n):
         if masked and mark[i] == 0:
             continue
@@ -288,14 +287,16 @@ def kajiya_kay(tangents, to_light, to_eye, shading: HairShading = HairShading())
 
 
 @ti.func
-def mesh_sample(key: ti.i64, p2, screen: ti.template(), faces: ti.template(), x: ti.template(),
-                normal: ti.template(), albedo: ti.template(), material: ti.template(), eye: vec3f,
-                to_light: vec3f, light: vec3f, ambient: vec3f, sview: mat4f, sproj: vec4f,
-                z0: ti.template(), opacity: ti.template(), bounds: ti.template(),
-                smesh_key: ti.template(), sparams: vec4f, first: ti.i32) -> vec3f:
-    """Radiance of face key_prim(key) seen at screen point p2 [px]: position, normal and colour
-    interpolated perspective-correctly; the shadow lookup offset along the normal by two
-    shadow texels against self-shadow acne."""
+def mesh_sample(key: ti.i64, p2, mesh: ti.template(), eye: vec3f, to_light: vec3f, light: vec3f,
+                ambient: vec3f, sview: mat4f, sproj: vec4f, sm: ti.template(), sparams: vec4f,
+                first: ti.i32) -> vec3f:
+    """Radiance of face key_prim(key) of the meshes (MeshArgs) seen at screen point p2 [px]:
+    position, normal and colour interpolated perspective-correctly; the shadow lookup in the
+    light's map (sview, sproj, sm, sparams as `shadows.transmittance` takes it) offset along
+    the normal by two shadow texels against self-shadow acne."""
+    screen, faces, x, normal, albedo, material = ti.static(
+        mesh.mesh_screen, mesh.mesh_faces, mesh.mesh_x, mesh.mesh_normal, mesh.mesh_albedo,
+        mesh.mesh_material)
     f = key_prim(key)
     ia, ib, ic = faces[f][0], faces[f][1], faces[f][2]
     w = barycentric(screen[ia], screen[ib], screen[ic], p2)
@@ -304,36 +305,27 @@ def mesh_sample(key: ti.i64, p2, screen: ti.template(), faces: ti.template(), x:
     n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
     v = unit(eye - p)
     n_eye = ti.select(n.dot(v) < 0.0, -n, n)
-    shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, z0,
-                           opacity, bounds, smesh_key, sparams)
+    shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, sm, sparams)
     col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
     return shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
                          material[f][0], material[f][1])
 
 
 @ti.kernel
-def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
-               edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-               sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
-               screen: ti.types.ndarray(dtype=vec4f, ndim=1),
-               faces: ti.types.ndarray(dtype=vec3i, ndim=1),
-               x: ti.types.ndarray(dtype=vec3f, ndim=1),
-               normal: ti.types.ndarray(dtype=vec3f, ndim=1),
-               albedo: ti.types.ndarray(dtype=vec3f, ndim=1),
-               material: ti.types.ndarray(dtype=ti.types.vector(2, ti.f32), ndim=1),
-               eye: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f, background: vec3f,
-               sview: mat4f, sproj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
-               opacity: ti.types.ndarray(dtype=f32, ndim=3),
-               bounds: ti.types.ndarray(dtype=f32, ndim=1),
-               smesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), sparams: vec4f, first: ti.i32,
-               base: ti.types.ndarray(dtype=vec3f, ndim=2)):
-    """base (H, W) = linear radiance of the visible mesh surface over the background; with
-    `first` = 0 only this light's direct term is added (one call per light). edge_index,
-    sub_key: the slots of the pixels near mesh edges and their depth keys at the
-    EDGE_SAMPLES^2 sub-pixel centres (`raster.mark_mesh_edges`, `raster.raster_edge_samples`).
+def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3f, light: vec3f,
+               ambient: vec3f, background: vec3f, sview: mat4f, sproj: vec4f, sm: ShadowMapArgs,
+               sparams: vec4f, first: ti.i32):
+    """base (H, W) = linear radiance of the visible mesh surface (mesh: the meshes' arrays,
+    shadowed by the light's map sview, sproj, sm, sparams) over the background; with `first`
+    = 0 only this light's direct term is added (one call per light). pixels: the meshes'
+    depth keys mesh_key and `base` (H, W), and edge_index, sub_key: the slots of the pixels
+    near mesh edges and their depth keys at the EDGE_SAMPLES^2 sub-pixel centres
+    (`raster.mark_mesh_edges`, `raster.raster_edge_samples`).
     Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, or a
     depth step of over 2 %: a silhouette) is the mean of its sub-pixels, each shaded on its own
     face; any other pixel is shaded once at its centre. One thread per pixel."""
+    mesh_key, edge_index, sub_key, base = ti.static(pixels.pixel_key, pixels.pixel_edge_index,
+                                                    pixels.pixel_sub_key, pixels.pixel_base)
     for py, px in base:
         key = mesh_key[py, px]
         slot = edge_index[py, px]
@@ -358,16 +350,14 @@ def shade_mesh(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                 if k != empty_key():
                     p2 = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
                                ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
-                    c += f32(1.0 / EDGE_SAMPLES ** 2) * mesh_sample(k, p2, screen, faces, x, normal, albedo,
-                                                 material, eye, to_light, light, ambient, sview,
-                                                 sproj, z0, opacity, bounds, smesh_key,
-                                                 sparams, first)
+                    c += f32(1.0 / EDGE_SAMPLES ** 2) * mesh_sample(
+                        k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm, sparams,
+                        first)
                 elif first:
                     c += f32(1.0 / EDGE_SAMPLES ** 2) * background
         elif any_mesh:
-            c = mesh_sample(key, pixel_centre(px, py), screen, faces, x, normal, albedo,
-                            material, eye, to_light, light, ambient, sview, sproj, z0, opacity,
-                            bounds, smesh_key, sparams, first)
+            c = mesh_sample(key, pixel_centre(px, py), mesh, eye, to_light, light, ambient, sview,
+                            sproj, sm, sparams, first)
         else:
             c = background
         if first:

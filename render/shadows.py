@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
+from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
 from .runtime import buffer, chunks, upload
@@ -73,6 +74,11 @@ class ShadowMap(NamedTuple):
     bounds: ti.Ndarray
     mesh_key: ti.Ndarray
     params: np.ndarray
+
+    def args(self) -> ShadowMapArgs:
+        """The map's arrays as one kernel argument (view, proj and params go beside it)."""
+        return ShadowMapArgs(shadow_z0=self.z0, shadow_opacity=self.opacity,
+                             shadow_bounds=self.bounds, shadow_mesh_key=self.mesh_key)
 
 
 @ti.kernel
@@ -201,11 +207,13 @@ def column_opacity(z0: ti.template(), opacity: ti.template(), bounds: ti.templat
 
 
 @ti.func
-def shadow_terms(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
-                 bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> vec3f:
+def shadow_terms(p: vec3f, view: mat4f, proj: vec4f, sm: ti.template(), params: vec4f) -> vec3f:
     """(hair opacity in front of p towards the light ~ fibres crossed, fraction of the light
     not blocked by meshes in [0, 1], hair opacity behind p in its column) at world point p [m],
-    bilinear over the 2x2 texels around it; (0, 1, 0) when shadows are off."""
+    bilinear over the 2x2 texels around it; (0, 1, 0) when shadows are off. view, proj, sm,
+    params: the light's map (`ShadowMap`; sm its ShadowMapArgs)."""
+    z0, opacity, bounds, mesh_key = ti.static(sm.shadow_z0, sm.shadow_opacity, sm.shadow_bounds,
+                                              sm.shadow_mesh_key)
     result = vec3f(0.0, 1.0, 0.0)
     if params[0] > 0.0:
         s = project(view, proj, p)
@@ -224,44 +232,38 @@ def shadow_terms(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity:
 
 
 @ti.func
-def transmittance(p: vec3f, view: mat4f, proj: vec4f, z0: ti.template(), opacity: ti.template(),
-                  bounds: ti.template(), mesh_key: ti.template(), params: vec4f) -> f32:
+def transmittance(p: vec3f, view: mat4f, proj: vec4f, sm: ti.template(), params: vec4f) -> f32:
     """Fraction in [0, 1] of the key light reaching world point p [m]:
-    exp(-density x hair opacity in front) x mesh visibility."""
-    t = shadow_terms(p, view, proj, z0, opacity, bounds, mesh_key, params)
+    exp(-density x hair opacity in front) x mesh visibility. view, proj, sm, params: the
+    light's map, as `shadow_terms` takes it."""
+    t = shadow_terms(p, view, proj, sm, params)
     return ti.exp(-params[1] * t[0]) * t[1]
 
 
 @ti.kernel
-def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
-                        view: mat4f, proj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
-                        opacity: ti.types.ndarray(dtype=f32, ndim=3),
-                        bounds: ti.types.ndarray(dtype=f32, ndim=1),
-                        mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
-                        masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                        row: ti.i32, out: ti.types.ndarray(dtype=vec3f, ndim=2)):
+def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), view: mat4f,
+                        proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,
+                        mark: ti.types.ndarray(dtype=ti.i32, ndim=1), row: ti.i32,
+                        out: ti.types.ndarray(dtype=vec3f, ndim=2)):
     """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
     where mark[i] != 0. One thread per point."""
     for k in range(n):
         if masked and mark[k] == 0:
             continue
-        out[row, k] = shadow_terms(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+        out[row, k] = shadow_terms(x[k], view, proj, sm, params)
 
 
 @ti.kernel
-def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1),
-                         view: mat4f, proj: vec4f, z0: ti.types.ndarray(dtype=f32, ndim=2),
-                         opacity: ti.types.ndarray(dtype=f32, ndim=3),
-                         bounds: ti.types.ndarray(dtype=f32, ndim=1),
-                         mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), params: vec4f,
-                         masked: ti.i32, mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), view: mat4f,
+                         proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,
+                         mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          out: ti.types.ndarray(dtype=f32, ndim=1)):
     """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
     thread per point."""
     for k in range(n):
         if masked and mark[k] == 0:
             continue
-        out[k] = transmittance(x[k], view, proj, z0, opacity, bounds, mesh_key, params)
+        out[k] = transmittance(x[k], view, proj, sm, params)
 
 
 @ti.kernel

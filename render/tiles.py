@@ -27,8 +27,11 @@ nearest point does not get it, and only the vertices of segments binned somewher
 
 import taichi as ti
 
+from .bundles import HairArgs, TileBinArgs
 from .camera import f32, vec3f, vec4f
 from .threads import mixed, spread
+
+vec4i = ti.types.vector(4, ti.i32)
 
 TILE = 16
 N_BINS = 256
@@ -112,18 +115,11 @@ def tile_far_depth(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
 
 
 @ti.kernel
-def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 screen: ti.types.ndarray(dtype=vec4f, ndim=1),
-                 width_px: ti.types.ndarray(dtype=f32, ndim=1), near: f32,
-                 zrange: ti.types.vector(2, ti.f32), width: ti.i32, height: ti.i32,
-                 far: ti.types.ndarray(dtype=f32, ndim=1),
-                 scatter: ti.i32, count: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 extra: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 rank: ti.types.ndarray(dtype=ti.i32, ndim=2),
-                 offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 items: ti.types.ndarray(dtype=ti.i64, ndim=1)):
-    """Pass 1 (scatter = 0): count segments per (tile, depth bin) cell, and mark (= 1) the
+def bin_segments(n: ti.i32, hair: HairArgs, near: f32, zrange: ti.types.vector(2, ti.f32),
+                 width: ti.i32, height: ti.i32, far: ti.types.ndarray(dtype=f32, ndim=1),
+                 scatter: ti.i32, bins: TileBinArgs):
+    """Bin the hair's (HairArgs) segments into the tile grid's cells (TileBinArgs).
+    Pass 1 (scatter = 0): count segments per (tile, depth bin) cell, and mark (= 1) the
     vertices of every segment binned somewhere (the only ones the frame shades). A segment's
     first RANKED entries are counted into `count`, keeping the count before it (its rank in
     the cell) in rank[e]; any further entries (long or wide segments) into `extra`. Pass 2
@@ -132,6 +128,10 @@ def bin_segments(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
     cursor `extra`. A tile whose farthest mesh depth (`far`) lies in front of the segment's
     nearest point is skipped: every fragment there would fail the depth test. One thread per
     segment."""
+    seg, screen, width_px, mark = ti.static(hair.hair_seg, hair.hair_screen, hair.hair_width_px,
+                                            hair.hair_mark)
+    count, extra, rank, offsets, items = ti.static(bins.bin_count, bins.bin_extra, bins.bin_rank,
+                                                   bins.bin_offsets, bins.bin_items)
     tiles_x = (width + TILE - 1) // TILE
     for e in range(n):
         i = seg[e]
@@ -222,22 +222,20 @@ def sort_bin(s0: ti.i32, s1: ti.i32, items: ti.template()):
 
 
 @ti.kernel
-def composite_tiles(width: ti.i32, height: ti.i32,
-                    offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                    items: ti.types.ndarray(dtype=ti.i64, ndim=1),
-                    screen: ti.types.ndarray(dtype=vec4f, ndim=1),
-                    width_px: ti.types.ndarray(dtype=f32, ndim=1),
-                    rgba: ti.types.ndarray(dtype=vec4f, ndim=1),
+def composite_tiles(width: ti.i32, height: ti.i32, bins: TileBinArgs, hair: HairArgs,
                     mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
                     mesh_near: ti.types.ndarray(dtype=f32, ndim=1),
                     base: ti.types.ndarray(dtype=vec3f, ndim=2),
                     out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
                     out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
                     probes: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-    """Blend each tile's segments front to back over `base`: out_rgb linear radiance,
-    out_alpha hair opacity, (H, W). One thread per tile; out_alpha holds the transmittance
-    while the tile is blended. probes[tile]: the sum of `request_vertices` (kept only so that
-    its loads are not optimised away)."""
+    """Blend each tile's segments (bins: the scattered TileBinArgs; hair: the shaded
+    HairArgs) front to back over `base`: out_rgb linear radiance, out_alpha hair opacity,
+    (H, W). One thread per tile; out_alpha holds the transmittance while the tile is
+    blended. probes[tile]: the sum of `request_vertices` (kept only so that its loads are not
+    optimised away)."""
+    offsets, items = ti.static(bins.bin_offsets, bins.bin_items)
+    screen, width_px, rgba = ti.static(hair.hair_screen, hair.hair_width_px, hair.hair_rgba)
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     n_tiles = tiles_x * tiles_y
@@ -292,7 +290,7 @@ def composite_tiles(width: ti.i32, height: ti.i32,
             # a segment wholly in front of the tile's nearest mesh passes every depth
             # test (fragment depths interpolate the ends': a relative margin for rounding)
             tested = ti.max(a[2], b[2]) * f32(1.0 + 1e-5) >= near_tile
-            n_open -= blend_segment(a, b, wa, wb, ca, cb, tx0, tx1, ty0, ty1, tested,
+            n_open -= blend_segment(a, b, wa, wb, ca, cb, vec4i(tx0, tx1, ty0, ty1), tested,
                                     mesh_key, out_rgb, out_alpha)
             a, b, wa, wb, ca, cb = a_next, b_next, wa_next, wb_next, ca_next, cb_next
             k += 1
@@ -321,16 +319,17 @@ def request_vertices(k0: ti.i32, k1: ti.i32, items: ti.template(), screen: ti.te
 
 
 @ti.func
-def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, tx0: ti.i32,
-                  tx1: ti.i32, ty0: ti.i32, ty1: ti.i32, tested: ti.i32, mesh_key: ti.template(),
-                  out_rgb: ti.template(), out_alpha: ti.template()) -> ti.i32:
+def blend_segment(a: vec4f, b: vec4f, wa: f32, wb: f32, ca: vec4f, cb: vec4f, box: vec4i,
+                  tested: ti.i32, mesh_key: ti.template(), out_rgb: ti.template(),
+                  out_alpha: ti.template()) -> ti.i32:
     """Blend the fragments of a segment (screen ends a, b, widths wa, wb [px], shaded end
-    colours ca, cb) inside the tile [tx0, tx1] x [ty0, ty1] behind what is there (depth-tested
-    against the meshes only if `tested`); returns how
+    colours ca, cb) inside the tile box = (tx0, tx1, ty0, ty1), [tx0, tx1] x [ty0, ty1] [px],
+    behind what is there (depth-tested against the meshes only if `tested`); returns how
     many pixels became opaque. Walks the footprint column by column along the segment's major
     axis, as `raster.raster_hair` does. The coverage is `raster.coverage`'s with the
     segment's constants (1 / length^2, 1 / length) hoisted out of the pixel loop: a pixel
     costs no division or square root unless it is covered."""
+    tx0, tx1, ty0, ty1 = box[0], box[1], box[2], box[3]
     closed = 0
     dx, dy = b[0] - a[0], b[1] - a[1]
     inv_l2 = f32(1.0) / (dx * dx + dy * dy)
@@ -396,7 +395,8 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     mesh_key's (H, W) and depth bins, skipping tiles where the meshes hide it, and mark in
     hd["mark"] the vertices of the segments binned (the frame shades only those). Returns the
     bins for `composite_binned`: {"offsets", "items", "fragments": segment-tile entries,
-    "tiles"}."""
+    "tiles", "mesh_near", "args": the cells as a TileBinArgs}; hd["args"] is the hair's
+    HairArgs."""
     from .runtime import buffer, chunks
     height, width = mesh_key.shape
     n_tiles = -(-width // TILE) * -(-height // TILE)
@@ -419,23 +419,24 @@ def bin_hair(hd: dict, near, mesh_key) -> dict:
     count.fill(0)
     extra.fill(0)
     hd["mark"].fill(0)
-    args = (hd["n_segments"], hd["seg"], hd["screen"], hd["width_px"], near, zrange, width,
-            height, far)
-    bin_segments(*args, 0, count, extra, rank, offsets, hd["mark"],
-                 buffer("tile_items_dummy", ti.i64, (1,)))
+    args = (hd["n_segments"], hd["args"], near, zrange, width, height, far)
+    bin_segments(*args, 0, TileBinArgs(bin_count=count, bin_extra=extra, bin_offsets=offsets,
+                                       bin_rank=rank,
+                                       bin_items=buffer("tile_items_dummy", ti.i64, (1,))))
     total = exclusive_scan(n_tiles * N_BINS, count, extra, offsets)
     capacity = 1 << max(int(total - 1).bit_length(), 10)   # powers of two: few reallocations
     items = buffer("tile_items", ti.i64, (capacity,))
-    bin_segments(*args, 1, count, extra, rank, offsets, hd["mark"], items)
+    cells = TileBinArgs(bin_count=count, bin_extra=extra, bin_offsets=offsets, bin_rank=rank,
+                        bin_items=items)
+    bin_segments(*args, 1, cells)
     return {"offsets": offsets, "items": items, "fragments": int(total), "tiles": n_tiles,
-            "mesh_near": mesh_near}
+            "mesh_near": mesh_near, "args": cells}
 
 
 def composite_binned(bins: dict, hd: dict, mesh_key, base, out_rgb, out_alpha) -> None:
     """Blend the binned, shaded hair front to back per tile over `base` (H, W)."""
     from .runtime import buffer
     height, width = base.shape
-    composite_tiles(width, height, bins["offsets"], bins["items"], hd["screen"],
-                    hd["width_px"], hd["rgba"], mesh_key, bins["mesh_near"], base, out_rgb, out_alpha,
-                    buffer("tile_probes", ti.i32, (bins["tiles"],)))
+    composite_tiles(width, height, bins["args"], hd["args"], mesh_key, bins["mesh_near"], base,
+                    out_rgb, out_alpha, buffer("tile_probes", ti.i32, (bins["tiles"],)))
 

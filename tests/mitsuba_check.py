@@ -292,7 +292,7 @@ def _encode(rgb) -> np.ndarray:
 def bsdf_table() -> list[dict]:
     """Max and mean relative error of our S against Mitsuba's over a grid of 125 angle
     triples (theta_i, theta_o, phi), per material."""
-    from render.fibre import fibre_scattering
+    from render.fibre_lobes import fibre_scattering
     g = np.radians(np.array([(a, b, c) for a in (-60, -30, 0, 20, 45) for b in (-50, -20, 0, 10, 40)
                              for c in (0, 45, 90, 150, 180)], float))
     light = np.stack([np.cos(g[:, 0]) * np.cos(g[:, 2]), np.sin(g[:, 0]),
