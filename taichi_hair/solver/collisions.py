@@ -71,8 +71,9 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
 DISTANCE_SLOPE = 2.0
 UNQUERIED = -1.0  # a clearance that makes the next pass query the node
 # Clearances are kept for two groups of colliders (CONTACT_CLEARANCE.x and .z) so that a node near
-# one is not queried against the other: the analytic shapes and the hands (SHAPES), and the
-# distance grid (GRID), whose queries cost the most; a pass's queries are flagged by bit in .y
+# one is not queried against the other: the first distance grid (GRID: the head's, where most hair
+# rests), and everything else (SHAPES: the analytic shapes, the hands and any further grid, such
+# as the default head's bust); a pass's queries are flagged by bit in .y
 SHAPES, GRID = 1, 2
 
 
@@ -129,7 +130,7 @@ def plan_queries(s, n, n_analytic, st: ti.template()):
         c = st.history[s, i, CONTACT_CLEARANCE]
         reach = DISTANCE_SLOPE * (point(st.x, s, i) - st.history[s, i, CONTACT_QUERY]).norm()
         holder = held_by(s, i, st)
-        on_grid = holder > n_analytic
+        on_grid = holder == n_analytic + 1
         shapes = not (c.x > reach) or (holder != 0 and not on_grid)  # written so that NaN queries
         grid = not (c.z > reach) or on_grid
         if shapes or grid:
@@ -320,7 +321,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
             margin = co.sdf_meta[row + 1][1]
             friction = co.sdf_meta[row + 1][2]
         group = SHAPES
-        if c >= n_analytic:
+        if c == n_analytic:
             group = GRID
         for i in range(md.node_count[s]):
             if not queried(s, i, group, springs, st):
