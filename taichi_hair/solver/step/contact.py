@@ -137,8 +137,17 @@ def write_step_values(params: Scalars1, sa: ScalarArgs, self_contact: ti.i32, ma
     """Each value into its named slot of params (SLOT): the launch's scalars (sa), then
     self_contact, the hash mask, friction, the allowed depth [m], the contact passes per step
     and the steps of the launch (the fused contact kernels read them, read_step_values)."""
-    for name in ti.static(SCALAR_NAMES):
-        params[SLOT[name]] = getattr(sa, name)
+    params[SLOT["h"]] = sa.h
+    params[SLOT["k0"]] = sa.k0
+    params[SLOT["drag"]] = sa.drag
+    params[SLOT["max_speed"]] = sa.max_speed
+    params[SLOT["projection_tol"]] = sa.projection_tol
+    params[SLOT["projection_iterations"]] = sa.projection_iterations
+    params[SLOT["twist_tol"]] = sa.twist_tol
+    params[SLOT["twist_iterations"]] = sa.twist_iterations
+    params[SLOT["n_analytic"]] = sa.n_analytic
+    params[SLOT["pin_f0"]] = sa.pin_f0
+    params[SLOT["pin_df"]] = sa.pin_df
     params[SLOT["self_contact"]] = self_contact
     params[SLOT["mask"]] = mask
     params[SLOT["friction"]] = friction
