@@ -41,6 +41,21 @@ vec_block = ti.types.vector(BLOCK, ti.f64)
 BlockMats3 = ti.types.ndarray(dtype=mat_block, ndim=3)  # [S, N, k]: k 5x5 blocks per node
 BlockVecs2 = ti.types.ndarray(dtype=vec_block, ndim=2)
 
+# The rods' arrays as two bundles (Taichi argpacks of ndarrays): the model (state.RodModel) and
+# the state (state.RodState, with its three edge scratch rows diag, upper, rhs). The step's
+# kernels and the energy and force kernels of rod.py and twist_forces.py take them whole; a
+# ti.func reads the members it needs (solver/step/bundles.StepBundles builds them once).
+ModelArgs = ti.types.argpack(
+    node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
+    stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
+
+
+StateArgs = ti.types.argpack(
+    x=Points2, v=Vec3s2, x_prev=Points2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
+    bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
+    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
+    tension=Scalars2, blocks=BlockMats3, block_rhs=BlockVecs2)
+
 
 def scalars(shape, value=None):
     """A float ndarray of `shape`, zero or filled from `value` (numpy-broadcastable)."""

@@ -27,7 +27,7 @@ and starts at node 1 as in plain DER.
 
 import taichi as ti
 
-from .arrays import Ints1, Points2, Scalars1, Scalars2, Vec3s1, Vec3s2, Vec4s1, Vec4s2, edge, vec2, vec3
+from .arrays import Ints1, ModelArgs, Scalars1, Scalars2, StateArgs, Vec3s1, Vec3s2, Vec4s1, Vec4s2, edge, vec2, vec3
 from .frames import material_directors
 from ..runtime import precision
 
@@ -221,14 +221,14 @@ def node_bend_terms(s, i, j, kb: ti.template(), m1: ti.template(), m2: ti.templa
 
 
 @ti.func
-def strand_energy(s, clamp: ti.template(), rotation: ti.template(), node_count: ti.template(),
-                  kb: ti.template(), m1: ti.template(), m2: ti.template(), theta: ti.template(),
-                  root_t: ti.template(), root_u: ti.template(), rest_kappa: ti.template(),
-                  rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template()):
+def strand_energy(s, clamp: ti.template(), rotation: ti.template(), md: ti.template(), st: ti.template()):
     """E_bend + E_twist of strand s [J] with the material frames (m1, m2) and angles as they are
-    (rotation: the rotation measure's node energies)."""
-    n = node_count[s]
-    k = stiffness[s]
+    (rotation: the rotation measure's node energies). md, st: the rods' model and state arrays
+    (arrays.ModelArgs, arrays.StateArgs)."""
+    kb, m1, m2, theta, root_t, root_u = ti.static(st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
+    n = md.node_count[s]
+    k = md.stiffness[s]
     total = 0.0
     for i in range(ti.static(first_node(clamp)), n - 1):
         if ti.static(rotation):
@@ -243,45 +243,45 @@ def strand_energy(s, clamp: ti.template(), rotation: ti.template(), node_count: 
 
 
 @ti.kernel
-def strand_elastic_energy(clamp: ti.template(), rotation: ti.template(), node_count: Ints1, kb: Vec3s2,
-                          m1: Vec3s2, m2: Vec3s2, theta: Scalars2, root_t: Vec3s1, root_u: Vec3s1,
-                          rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2,
-                          stiffness: Vec4s1, energy: Scalars1):
+def strand_elastic_energy(clamp: ti.template(), rotation: ti.template(), md: ModelArgs, st: StateArgs,
+                          energy: Scalars1):
     """energy[s] = E_bend + E_twist of strand s [J], material angles as they are. One thread per strand."""
-    for s in range(node_count.shape[0]):
-        energy[s] = strand_energy(s, clamp, rotation, node_count, kb, m1, m2, theta, root_t, root_u,
-                                  rest_kappa, rest_twist, voronoi, stiffness)
+    for s in range(md.node_count.shape[0]):
+        energy[s] = strand_energy(s, clamp, rotation, md, st)
+
+
+@ti.func
+def edge_gradient(s, j, n, first, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
+    """dE/dtheta^j [J/rad] of edge j < n - 1 with the material frames (m1, m2) and angles as
+    they are (md, st as in strand_energy; k = stiffness[s])."""
+    kb, m1, m2, theta, root_t, root_u = ti.static(st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
+    g = 0.0
+    if ti.static(rotation):
+        if j >= first:  # node j: theta^j is its theta^i
+            _w, _e, d, _h, _gn, _g_kb = rotation_node(s, j, kb, m1, m2, theta, rest_kappa, voronoi, k)
+            g += 0.5 * d.x + d.y
+        if j + 1 <= n - 2:  # node j+1: theta^j is its theta^{i-1}
+            _w, _e, d, _h, _gn, _g_kb = rotation_node(s, j + 1, kb, m1, m2, theta, rest_kappa, voronoi, k)
+            g += 0.5 * d.x - d.y
+    else:
+        g, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
+        if j >= first:
+            _, d, _, _ = node_bend_terms(s, j, j, kb, m1, m2, root_t, root_u, rest_kappa, voronoi, k)
+            g += d
+        if j + 1 <= n - 2:
+            _, d, _, _ = node_bend_terms(s, j + 1, j, kb, m1, m2, root_t, root_u, rest_kappa, voronoi, k)
+            g += d
+    return g
 
 
 @ti.kernel
-def theta_gradient(clamp: ti.template(), rotation: ti.template(), node_count: Ints1, kb: Vec3s2,
-                   m1: Vec3s2, m2: Vec3s2, theta: Scalars2, root_t: Vec3s1, root_u: Vec3s1,
-                   rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
-                   grad: Scalars2):
+def theta_gradient(clamp: ti.template(), rotation: ti.template(), md: ModelArgs, st: StateArgs, grad: Scalars2):
     """grad[s, j] = dE/dtheta^j [J/rad] for every edge. One thread per edge."""
-    for s, j in ti.ndrange(theta.shape[0], theta.shape[1]):
-        n = node_count[s]
+    for s, j in ti.ndrange(st.theta.shape[0], st.theta.shape[1]):
+        n = md.node_count[s]
         if j < n - 1:
-            k = stiffness[s]
-            first = ti.static(first_node(clamp))
-            g = 0.0
-            if ti.static(rotation):
-                if j >= first:  # node j: theta^j is its theta^i
-                    _w, _e, d, _h, _gn, _g_kb = rotation_node(s, j, kb, m1, m2, theta, rest_kappa, voronoi, k)
-                    g += 0.5 * d.x + d.y
-                if j + 1 <= n - 2:  # node j+1: theta^j is its theta^{i-1}
-                    _w, _e, d, _h, _gn, _g_kb = rotation_node(s, j + 1, kb, m1, m2, theta, rest_kappa, voronoi, k)
-                    g += 0.5 * d.x - d.y
-            else:
-                g, _ = twist_terms(s, j, n, first, theta, rest_twist, voronoi, k.z)
-                if j >= first:
-                    _, d, _, _ = node_bend_terms(s, j, j, kb, m1, m2, root_t, root_u, rest_kappa, voronoi, k)
-                    g += d
-                if j + 1 <= n - 2:
-                    _, d, _, _ = node_bend_terms(s, j + 1, j, kb, m1, m2, root_t, root_u, rest_kappa,
-                                                 voronoi, k)
-                    g += d
-            grad[s, j] = g
+            grad[s, j] = edge_gradient(s, j, n, ti.static(first_node(clamp)), rotation, md, st, md.stiffness[s])
 
 
 @ti.func
@@ -324,14 +324,12 @@ def add_holonomy_gradient(s, i, e0, e1, kbi, coeff, grad: ti.template()):
 
 
 @ti.func
-def strand_elastic_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.template(),
-                          node_count: ti.template(), kb: ti.template(), m1: ti.template(),
-                          m2: ti.template(), theta: ti.template(), root_t: ti.template(),
-                          root_u: ti.template(), rest_kappa: ti.template(), voronoi: ti.template(),
-                          stiffness: ti.template(), force: ti.template()):
-    """force[s, :] = -dE/dx for strand s (see elastic_forces)."""
-    n = node_count[s]
-    k = stiffness[s]
+def strand_elastic_forces(s, clamp: ti.template(), rotation: ti.template(), md: ti.template(), st: ti.template()):
+    """st.force[s, :] = -dE/dx for strand s (see elastic_forces; md, st as in strand_energy)."""
+    x, kb, m1, m2, theta, root_t, root_u = ti.static(st.x, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u)
+    rest_kappa, voronoi, force = ti.static(md.rest_kappa, md.voronoi, st.force)
+    n = md.node_count[s]
+    k = md.stiffness[s]
     first = ti.static(first_node(clamp))
     for i in range(n):
         force[s, i] = vec3(0.0)
@@ -361,10 +359,8 @@ def strand_elastic_forces(s, clamp: ti.template(), rotation: ti.template(), x: t
 
 
 @ti.kernel
-def elastic_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, node_count: Ints1,
-                   kb: Vec3s2, m1: Vec3s2, m2: Vec3s2, theta: Scalars2, root_t: Vec3s1, root_u: Vec3s1,
-                   rest_kappa: Vec4s2, voronoi: Scalars2, stiffness: Vec4s1, force: Vec3s2):
-    """force[s, i] = -dE/dx_i [N] with the material angles held fixed (holonomy term included).
+def elastic_forces(clamp: ti.template(), rotation: ti.template(), md: ModelArgs, st: StateArgs):
+    """st.force[s, i] = -dE/dx_i [N] with the material angles held fixed (holonomy term included).
 
     Twist energy does not depend on x at fixed theta in a Bishop frame. The bending energy does
     through kb and through the material frames, which turn with the reference frame's holonomy:
@@ -373,9 +369,8 @@ def elastic_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, no
     thread per strand; the suffix sum C_k = sum_{j>=k} dE_bend/dtheta^j runs from tip to root.
     rotation: the rotation measure, whose node i depends on the frames only through the mid
     frame carried by edge i (dE/dbeta is its frame term)."""
-    for s in range(x.shape[0]):
-        strand_elastic_forces(s, clamp, rotation, x, node_count, kb, m1, m2, theta, root_t, root_u,
-                              rest_kappa, voronoi, stiffness, force)
+    for s in range(st.x.shape[0]):
+        strand_elastic_forces(s, clamp, rotation, md, st)
 
 
 @ti.kernel

@@ -35,11 +35,10 @@ on the chain for the same reason as the DER one.
 
 import taichi as ti
 
-from .arrays import Ints1, Points2, Scalars2, Vec3s1, Vec3s2, Vec3s3, Vec4s1, Vec4s2, vec2
+from .arrays import vec2
 from .frames import material_directors
 from .linalg import back_substitute
-from .rod import (add_holonomy_gradient, add_kb_gradient, bend_terms, first_node, node_edges, node_twist,
-                  rotation_node_terms, twist_terms)
+from .rod import bend_terms, first_node, node_twist, rotation_node_terms, twist_terms
 from .modes import Twist
 from ..runtime import precision
 
@@ -106,11 +105,12 @@ def rotation_node_at(s, i, before, after, bishop_u: ti.template(), bishop_v: ti.
 
 
 @ti.func
-def edge_theta_gradient(s, j, n, first, rotation: ti.template(), bishop_u: ti.template(),
-                        bishop_v: ti.template(), kb: ti.template(), theta: ti.template(),
-                        rest_kappa: ti.template(), rest_twist: ti.template(), voronoi: ti.template(), k):
+def edge_theta_gradient(s, j, n, first, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
     """dE/dtheta^j [J/rad] at the angles as they are (bending and twist, either measure; under
-    the rotation measure the nodes j and j+1, where theta^j is theta^i and theta^{i-1})."""
+    the rotation measure the nodes j and j+1, where theta^j is theta^i and theta^{i-1}). md, st:
+    the rods' model and state arrays (arrays.ModelArgs, arrays.StateArgs)."""
+    bishop_u, bishop_v, kb, theta = ti.static(st.bishop_u, st.bishop_v, st.kb, st.theta)
+    rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
     g = 0.0
     if ti.static(rotation):
         if j >= first:
@@ -133,8 +133,8 @@ def edge_theta_gradient(s, j, n, first, rotation: ti.template(), bishop_u: ti.te
 def theta_energy(s, n, first, rotation: ti.template(), md: ti.template(), st: ti.template(), k):
     """The part of strand s's energy [J] that depends on its material angles: every bending
     term seen from an edge and every twist term (node 0's clamp-side bending term is constant);
-    rotation: every node's energy. md, st: the rods' model and state arrays (state.ModelArgs,
-    state.StateArgs: rest curvature, rest twist, Voronoi lengths; Bishop frames, curvature
+    rotation: every node's energy. md, st: the rods' model and state arrays (arrays.ModelArgs,
+    arrays.StateArgs: rest curvature, rest twist, Voronoi lengths; Bishop frames, curvature
     binormals, angles)."""
     bishop_u, bishop_v, kb, theta = ti.static(st.bishop_u, st.bishop_v, st.kb, st.theta)
     rest_kappa, rest_twist, voronoi = ti.static(md.rest_kappa, md.rest_twist, md.voronoi)
@@ -313,7 +313,7 @@ def strand_twist_quasistatic(s, clamp: ti.template(), free_root: ti.template(), 
                              clip: ti.template()):
     """Newton with line search on strand s's free angles (see the module doc; free_root: edge 0
     is free too; clips: edges held by twist-holding clips keep their angles). md, st: the rods'
-    model and state arrays (state.ModelArgs, state.StateArgs); the state's three edge scratch
+    model and state arrays (arrays.ModelArgs, arrays.StateArgs); the state's three edge scratch
     rows hold the Newton system. Returns (iterations, scaled residual when it stopped, CONVERGED /
     STALLED / CAPPED)."""
     theta, grad, diag, upper = ti.static(st.theta, st.diag, st.upper, st.rhs)
@@ -434,94 +434,3 @@ def local_twist_energy(s, j, n, first, angle, theta: ti.template(), rest_twist: 
         m = theta[s, j + 1] - angle - rest_twist[s, j + 1]
         energy += gj * m * m * 0.5 / voronoi[s, j + 1]
     return energy
-
-
-@ti.func
-def strand_kmoch_forces(s, clamp: ti.template(), x: ti.template(), node_count: ti.template(),
-                        bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                        theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
-                        rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
-                        force: ti.template()):
-    """force[s] -= sum_j dE/dtheta^j dtheta_kmoch^j/dx: with Kmoch's rule the angles are a
-    function of the centreline, so the force of E(x, theta_kmoch(x)) needs this term on top of
-    the fixed-angle gradient (docs/model.md, "Kmoch's rule and energy consistency"). Elliptic
-    strands only (round ones are solved to dE/dtheta = 0). With eta^j = arg(S_j) / 2,
-    S_j = sum_n z_n^2, z_n = kb_n . (u^j + i v^j) over the edge's end nodes n in {j, j+1}:
-    d eta^j = sum_n d kb_n . Im(z_n (u + i v) / S_j) - d Psi^j, the last term because the angle
-    is measured from the Bishop vector u^j, which turns with the holonomy."""
-    k = stiffness[s]
-    if k.x != k.y:
-        n = node_count[s]
-        first = ti.static(first_node(clamp))
-        suffix = 0.0
-        for r in range(n - 1 - first):
-            j = n - 2 - r
-            g = edge_theta_gradient(s, j, n, first, False, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                    rest_twist, voronoi, k)
-            suffix += g  # sum over free edges >= j: the coefficient of grad psi_j
-            e0, e1 = node_edges(s, j, x, root_t)
-            add_holonomy_gradient(s, j, e0, e1, kb[s, j], suffix, force)
-            u = bishop_u[s, j]
-            v = bishop_v[s, j]
-            total = vec2(0.0)
-            for node in ti.static(range(2)):
-                z = vec2(kb[s, j + node].dot(u), kb[s, j + node].dot(v))
-                total += vec2(z.x * z.x - z.y * z.y, 2.0 * z.x * z.y)
-            norm_sq = total.dot(total)
-            if ti.sqrt(norm_sq) > MIN_CURVATURE_SQ:  # else the rule keeps theta: no derivative
-                for node in ti.static(range(2)):
-                    i = j + node
-                    if i <= n - 2:  # the tip has no curvature
-                        z = vec2(kb[s, i].dot(u), kb[s, i].dot(v))
-                        q = vec2(z.x * total.x + z.y * total.y, z.y * total.x - z.x * total.y) / norm_sq
-                        a0, a1 = node_edges(s, i, x, root_t)
-                        add_kb_gradient(s, i, a0, a1, kb[s, i], -g * (q.x * v + q.y * u), force)
-
-
-@ti.kernel
-def kmoch_forces(clamp: ti.template(), x: Points2, node_count: Ints1, bishop_u: Vec3s2,
-                 bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
-                 rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
-                 force: Vec3s2):
-    """strand_kmoch_forces for every strand (added to force [S, N] N). One thread per strand."""
-    for s in range(x.shape[0]):
-        strand_kmoch_forces(s, clamp, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
-                            rest_kappa, rest_twist, voronoi, stiffness, force)
-
-
-@ti.func
-def strand_held_twist_forces(s, clamp: ti.template(), rotation: ti.template(), x: ti.template(),
-                             node_count: ti.template(),
-                             bishop_u: ti.template(), bishop_v: ti.template(), kb: ti.template(),
-                             theta: ti.template(), root_t: ti.template(), rest_kappa: ti.template(),
-                             rest_twist: ti.template(), voronoi: ti.template(), stiffness: ti.template(),
-                             clip: ti.template(), force: ti.template()):
-    """force[s] += g_c grad Psi^c for every edge c whose material frame a clip holds in space
-    (clip[s, c, 1].z > 0; docs/model.md, "Clips that hold twist"). Its angle from the Bishop frame
-    is theta^c = alpha_c - Psi^c(x), alpha_c the clip's fixed angle and Psi^c = sum_{k<=c} psi_k
-    the Bishop frame's turn from the root to edge c, so E(x) = E(x, theta^c(x)) has the extra
-    gradient dE/dtheta^c (-grad Psi^c) on top of the fixed-angle gradient that elastic_forces
-    computes: writhe traded for twist, which is what buckles a twisted rod. g_c = dE/dtheta^c
-    [J/rad] (bending and twist)."""
-    n = node_count[s]
-    k = stiffness[s]
-    first = ti.static(first_node(clamp))
-    for c in range(first, n - 1):
-        if edge_twist_held(s, c, True, clip):
-            g = edge_theta_gradient(s, c, n, first, rotation, bishop_u, bishop_v, kb, theta, rest_kappa,
-                                    rest_twist, voronoi, k)
-            for i in range(first, c + 1):
-                e0, e1 = node_edges(s, i, x, root_t)
-                add_holonomy_gradient(s, i, e0, e1, kb[s, i], g, force)
-
-
-@ti.kernel
-def held_twist_forces(clamp: ti.template(), rotation: ti.template(), x: Points2, node_count: Ints1,
-                      bishop_u: Vec3s2,
-                      bishop_v: Vec3s2, kb: Vec3s2, theta: Scalars2, root_t: Vec3s1,
-                      rest_kappa: Vec4s2, rest_twist: Scalars2, voronoi: Scalars2, stiffness: Vec4s1,
-                      clip: Vec3s3, force: Vec3s2):
-    """strand_held_twist_forces for every strand (added to force [S, N] N). One thread per strand."""
-    for s in range(x.shape[0]):
-        strand_held_twist_forces(s, clamp, rotation, x, node_count, bishop_u, bishop_v, kb, theta, root_t,
-                                 rest_kappa, rest_twist, voronoi, stiffness, clip, force)

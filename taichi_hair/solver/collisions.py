@@ -170,17 +170,22 @@ def note_clearance(s, i, d, margin, group, springs: ti.template(), st: ti.templa
         st.history[s, i, CONTACT_CLEARANCE] = c
 
 
+# A collider's surface as contact_with_friction takes it: its margin [m] and friction coefficient
+ContactSurface = ti.types.struct(margin=float, friction=float)
+
+
 @ti.func
-def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_prev, d, n, margin, friction,
-                          contact, st: ti.template()):
-    """resolve_contact for node i of strand s in a collider's frame (head coordinates at pose
-    now when on_head), its step totals (st.history's FRICTION_SHIFT in world axes and
-    FRICTION_PUSH) read and written back, so a node touching a head and a world collider in one
-    step keeps one budget; `contact` names the collider (held_by). Returns the moved point in the world."""
+def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_prev, d, n, surface, contact,
+                          st: ti.template()):
+    """resolve_contact for node i of strand s, d [m] from a collider's surface (ContactSurface)
+    along its normal n, in the collider's frame (head coordinates at pose now when on_head), its
+    step totals (st.history's FRICTION_SHIFT in world axes and FRICTION_PUSH) read and written
+    back, so a node touching a head and a world collider in one step keeps one budget; `contact`
+    names the collider (held_by). Returns the moved point in the world."""
     shift = st.history[s, i, FRICTION_SHIFT]
     if on_head:
         shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
-    moved, shift, total = resolve_contact(local, local_prev, d, n, margin, friction, shift,
+    moved, shift, total = resolve_contact(local, local_prev, d, n, surface.margin, surface.friction, shift,
                                           st.history[s, i, FRICTION_PUSH].x)
     if on_head:
         shift = head_rotate(head, now, shift)
@@ -342,8 +347,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 if on_head:
                     normal = head_rotate(head, now, n)
                 local_prev = collider_frame(on_head, head, prev, point(x_prev, s, i))
+                surface = ContactSurface(margin=margin, friction=friction)
                 place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
-                                                          margin, friction, c + 1, st), normal, springs, md, st)
+                                                          surface, c + 1, st), normal, springs, md, st)
                 pushes += 1
     if ti.static(fl.touch):
         for k in range(dr.tools.shape[0]):
@@ -358,8 +364,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         note_clearance(s, i, d, dr.tools[k][2], SHAPES, springs, st)
                         if in_contact(s, i, -1 - k, d, dr.tools[k][2], springs, md, st):
                             # in the hand's frame, which does not turn: shift in world axes
+                            surface = ContactSurface(margin=dr.tools[k][2], friction=dr.tools[k][3])
                             moved = contact_with_friction(s, i, False, head, now, local, local_prev, d, n,
-                                                          dr.tools[k][2], dr.tools[k][3], -1 - k, st)
+                                                          surface, -1 - k, st)
                             place_contact(s, i, centre + moved, n, springs, md, st)
                             pushes += 1
     return pushes

@@ -14,7 +14,7 @@ from ..rods.groom import MAX_TURNING_ANGLE_DEG, MIN_SEGMENT_LENGTH, Groom
 from ..rods.modes import Root, Twist
 from ..rods.rod import elastic_forces, first_node, strand_elastic_energy, theta_gradient
 from ..rods.state import COUNTERS, build
-from ..rods.twist import held_twist_forces, kmoch_forces
+from ..rods.twist_forces import held_twist_forces, kmoch_forces
 from ..runtime import ensure_init, precision
 from ..world.options import Environment, SolverOptions, split_keywords
 from .implicit import assemble_stiffness, clear_system
@@ -174,9 +174,7 @@ class RodSystem:
     def strand_elastic_energy(self) -> np.ndarray:
         """Elastic energy of each strand [S] in joules, material angles as they are."""
         st, md = self.state, self.model
-        strand_elastic_energy(md.clamp, md.rotation, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
-                              st.root_u, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness,
-                              st.strand_scalar)
+        strand_elastic_energy(md.clamp, md.rotation, self.bundles.model, self.bundles.state, st.strand_scalar)
         return st.strand_scalar.to_numpy().astype(np.float64)
 
     def elastic_energy(self) -> float:
@@ -192,13 +190,11 @@ class RodSystem:
         [S, N] ndarray of rest curvatures to use instead of the model's (the sag-free solve
         probes the force's dependence on them this way, leaving the model as it is). clip: the
         pin table's clip array when clips hold twist: their edges' angles follow the centreline
-        (twist.strand_held_twist_forces)."""
-        total_elastic_forces(self.model, self.state, self.twist, rest_kappa)
+        (twist_forces.strand_held_twist_forces)."""
+        total_elastic_forces(self.bundles, self.twist, rest_kappa)
         if clip is not None:
-            md, st = self.model, self.state
-            held_twist_forces(md.clamp, md.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                              st.root_t, md.rest_kappa if rest_kappa is None else rest_kappa,
-                              md.rest_twist, md.voronoi, md.stiffness, clip, st.force)
+            md = self.model
+            held_twist_forces(md.clamp, md.rotation, self.bundles.model_with(rest_kappa), self.bundles.state, clip)
         return self.state.force.to_numpy().astype(np.float64)
 
     def elastic_hessian(self, x0, strands, h: float) -> np.ndarray:
@@ -264,8 +260,7 @@ class RodSystem:
         """dE/dtheta^j [S, N-1] in joules per radian (the twist solve drives the free ones to 0)."""
         st, md = self.state, self.model
         out = st.scratch_edge[0]
-        theta_gradient(md.clamp, md.rotation, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t, st.root_u,
-                       md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, out)
+        theta_gradient(md.clamp, md.rotation, self.bundles.model, self.bundles.state, out)
         return out.to_numpy().astype(np.float64)
 
 
@@ -330,17 +325,14 @@ def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: t
             st.counters[s, BAD] = 0
 
 
-def total_elastic_forces(model, state, twist: str, rest_kappa=None) -> None:
+def total_elastic_forces(bundles: StepBundles, twist: str, rest_kappa=None) -> None:
     """state.force = the elastic force [S, N] N: minus the gradient at fixed angles, plus, under
     Kmoch's rule, the term from the angles' dependence on the centreline (elliptic strands).
     rest_kappa: rest curvatures to use instead of the model's (None: the model's)."""
-    md, st = model, state
-    kappa = md.rest_kappa if rest_kappa is None else rest_kappa
-    elastic_forces(md.clamp, md.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta, st.root_t,
-                   st.root_u, kappa, md.voronoi, md.stiffness, st.force)
+    md, model = bundles.rods[0], bundles.model_with(rest_kappa)
+    elastic_forces(md.clamp, md.rotation, model, bundles.state)
     if twist == "kmoch":
-        kmoch_forces(md.clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                     st.root_t, kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+        kmoch_forces(md.clamp, model, bundles.state)
 
 
 def run_twist_update(bundles: StepBundles, twist: str, root: str, twist_tol: float, twist_iterations: int,

@@ -2,21 +2,8 @@
 
 import taichi as ti
 
-from ...rods.arrays import (BlockMats3, BlockVecs2, Ints1, Ints2, Points2, Scalars2, Scalars3, Vec3s1,
-                            Vec3s2, Vec3s3, Vec4s1, Vec4s2)
+from ...rods.arrays import Ints1, Ints2, ModelArgs, Scalars3, StateArgs, Vec3s1, Vec3s2, Vec3s3, Vec4s1
 from .plan import stage_flags, StepPlan
-
-
-ModelArgs = ti.types.argpack(
-    node_count=Ints1, mass=Scalars2, inv_mass=Scalars2, rest_length=Scalars2, voronoi=Scalars2,
-    stiffness=Vec4s1, rest_kappa=Vec4s2, rest_twist=Scalars2, root_frame=Vec3s2)
-
-
-StateArgs = ti.types.argpack(
-    x=Points2, v=Vec3s2, x_prev=Points2, dx=Vec3s2, force=Vec3s2, theta=Scalars2, bishop_u=Vec3s2,
-    bishop_v=Vec3s2, m1=Vec3s2, m2=Vec3s2, kb=Vec3s2, root_t=Vec3s1, root_u=Vec3s1,
-    diag=Scalars2, upper=Scalars2, rhs=Scalars2, counters=Ints2, residuals=Scalars2, history=Vec3s3,
-    tension=Scalars2, blocks=BlockMats3, block_rhs=BlockVecs2)
 
 
 DriveArgs = ti.types.argpack(
@@ -30,6 +17,24 @@ ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=
 StepScalars = ti.types.struct(
     h=float, k0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
     twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
+
+
+# The launch's scalars by name (StepScalars' members) as an argpack, which a kernel takes whole
+# and gathers into StepScalars inside (gather_scalars), where it is free. One per StepBundles,
+# rewritten before a launch only where a value changed (StepBundles.scalars): a member costs
+# about 40 us to write, typically k0 alone per launch, while building an argpack or a struct
+# in Python costs about 1 ms (Taichi 1.7.4, this 2-core machine under load) and passing 11
+# loose scalars costs about what passing the argpack does.
+ScalarArgs = ti.types.argpack(**StepScalars.members)
+
+
+@ti.func
+def gather_scalars(sa: ti.template()):
+    """The StepScalars of a launch's ScalarArgs."""
+    return StepScalars(h=sa.h, k0=sa.k0, drag=sa.drag, max_speed=sa.max_speed, projection_tol=sa.projection_tol,
+                       projection_iterations=sa.projection_iterations, twist_tol=sa.twist_tol,
+                       twist_iterations=sa.twist_iterations, n_analytic=sa.n_analytic, pin_f0=sa.pin_f0,
+                       pin_df=sa.pin_df)
 
 
 class StepBundles:
@@ -50,6 +55,8 @@ class StepBundles:
                                tension=st.tension, blocks=st.blocks, block_rhs=st.block_rhs)
         self._state, self._model, self._control, self.contacts = st, md, None, None
         self._drive_key, self._drive = None, None
+        self._scalars, self._scalar_values = None, None
+        self._kappa_model = (None, None)
 
     def bind(self, control) -> None:
         """Take the control arrays (control.Control) that drive the steps."""
@@ -73,6 +80,33 @@ class StepBundles:
             self._drive_key = key
         return self._drive
 
+    def scalars(self, plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)):
+        """The launch's ScalarArgs (step_scalars' values): this bundles' one argpack, its members
+        rewritten where they changed since the last launch."""
+        values = step_scalars(plan, control, h, pin_fraction)
+        if self._scalars is None:
+            self._scalars = ScalarArgs(**dict(zip(SCALAR_NAMES, values)))
+        else:
+            for name, value, last in zip(SCALAR_NAMES, values, self._scalar_values):
+                if value != last:
+                    self._scalars[name] = value
+        self._scalar_values = values
+        return self._scalars
+
+    def model_with(self, rest_kappa=None):
+        """The model bundle, or one with rest curvatures rest_kappa (a vec4 [S, N] ndarray) in
+        place of the model's; the last one built is kept for the next call with the same array."""
+        if rest_kappa is None:
+            return self.model
+        kappa, model = self._kappa_model
+        if kappa is not rest_kappa:
+            md = self._model
+            model = ModelArgs(node_count=md.node_count, mass=md.mass, inv_mass=md.inv_mass,
+                              rest_length=md.rest_length, voronoi=md.voronoi, stiffness=md.stiffness,
+                              rest_kappa=rest_kappa, rest_twist=md.rest_twist, root_frame=md.root_frame)
+            self._kappa_model = (rest_kappa, model)
+        return model
+
     @property
     def rods(self):
         """(RodModel, RodState): the arrays the bundles hold."""
@@ -89,16 +123,12 @@ class StepBundles:
                          pin_end=st.dx, clip=st.history)
 
 
-# The launch's scalars by name, in the order the kernels take them: as scalar arguments, since one
-# vector argument of 11 numbers made a launch 3x dearer than 11 scalars (Taichi 1.7: 1.39 ms
-# against 0.45 ms per launch on this 2-core machine under load), and a struct costs about 0.2 ms
-# to build in Python. A kernel gathers them into StepScalars inside, where it is free.
+# The launch's scalars in StepScalars' order (ScalarArgs' members; contact.py's slots)
 SCALAR_NAMES = tuple(StepScalars.members)
-INTEGER_SCALARS = tuple(name for name, kind in StepScalars.members.items() if kind == ti.i32)
 
 
 def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
-    """The launch's scalars in SCALAR_NAMES' order: step h [s], the launch's first step index
+    """The launch's scalar values in SCALAR_NAMES' order: step h [s], the launch's first step index
     control.first_step (k0: time k0 h; a whole number, exact in float32 up to 2^24 steps); pins
     pin_fraction = (f0, df)."""
     values = dict(h=h, k0=float(control.first_step), drag=control.drag, max_speed=control.max_speed,

@@ -5,7 +5,7 @@ import taichi as ti
 from ...rods.arrays import Scalars1
 from ..strand_contact import (contact_pass, ContactGridArgs, DEPTH_MAX, DONE, MAX_PENETRATION, PAIRS,
                               RESOLVE, resolve_strand_contacts, STEP_VALUES, CONTACT_GRID_VALUES)
-from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, SCALAR_NAMES, StateArgs, step_scalars,
+from .bundles import (ContactArgs, DriveArgs, launch_flags, ModelArgs, SCALAR_NAMES, ScalarArgs, StateArgs,
                       StepBundles, StepScalars)
 from .fused import run_stages
 from .plan import BAD, StepPlan
@@ -132,25 +132,22 @@ def advance_small_with_strand_contact(fl: ti.template(), with_friction: ti.templ
 
 
 @ti.kernel
-def write_step_values(params: Scalars1, h: float, k0: float, drag: float, max_speed: float,
-                      projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
-                      twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
-                      self_contact: ti.i32, mask: ti.i32, friction: float, allowed: float, iterations: ti.i32,
-                      n_steps: ti.i32):
-    """Each value into its named slot of params (SLOT): the launch's scalars, then self_contact,
-    the hash mask, friction, the allowed depth [m], the contact passes per step and the steps of
-    the launch (the fused contact kernels read them, read_step_values)."""
-    params[SLOT["h"]] = h
-    params[SLOT["k0"]] = k0
-    params[SLOT["drag"]] = drag
-    params[SLOT["max_speed"]] = max_speed
-    params[SLOT["projection_tol"]] = projection_tol
-    params[SLOT["projection_iterations"]] = projection_iterations
-    params[SLOT["twist_tol"]] = twist_tol
-    params[SLOT["twist_iterations"]] = twist_iterations
-    params[SLOT["n_analytic"]] = n_analytic
-    params[SLOT["pin_f0"]] = pin_f0
-    params[SLOT["pin_df"]] = pin_df
+def write_step_values(params: Scalars1, sa: ScalarArgs, self_contact: ti.i32, mask: ti.i32, friction: float,
+                      allowed: float, iterations: ti.i32, n_steps: ti.i32):
+    """Each value into its named slot of params (SLOT): the launch's scalars (sa), then
+    self_contact, the hash mask, friction, the allowed depth [m], the contact passes per step
+    and the steps of the launch (the fused contact kernels read them, read_step_values)."""
+    params[SLOT["h"]] = sa.h
+    params[SLOT["k0"]] = sa.k0
+    params[SLOT["drag"]] = sa.drag
+    params[SLOT["max_speed"]] = sa.max_speed
+    params[SLOT["projection_tol"]] = sa.projection_tol
+    params[SLOT["projection_iterations"]] = sa.projection_iterations
+    params[SLOT["twist_tol"]] = sa.twist_tol
+    params[SLOT["twist_iterations"]] = sa.twist_iterations
+    params[SLOT["n_analytic"]] = sa.n_analytic
+    params[SLOT["pin_f0"]] = sa.pin_f0
+    params[SLOT["pin_df"]] = sa.pin_df
     params[SLOT["self_contact"]] = self_contact
     params[SLOT["mask"]] = mask
     params[SLOT["friction"]] = friction
@@ -168,7 +165,7 @@ def steps_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: 
     (`advance_small_with_strand_contact`; a small scene: SMALL_CONTACT_SCENE); head poses and
     pins as in `advance`."""
     flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
-    write_step_values(grid.params, *step_scalars(plan, control, h, fraction), int(settings.self_contact),
+    write_step_values(grid.params, bundles.scalars(plan, control, h, fraction), int(settings.self_contact),
                       grid.T - 1, settings.friction, grid.allowed_depth(settings.tolerance), settings.iterations,
                       n_steps)
     advance_small_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state,
@@ -183,15 +180,15 @@ def step_with_strand_contact(bundles: StepBundles, plan: StepPlan, control, h: f
     strand_contact.ContactGrid, settings its StrandContact; pins as in `advance`. Returns the
     depth [m] the last of those further passes found (0 if none ran)."""
     flags, arrays_, fraction = launch_flags(plan, control, pins)
-    scalars = step_scalars(plan, control, h, fraction)
-    write_step_values(grid.params, *scalars, int(settings.self_contact), grid.T - 1, settings.friction,
+    scalars = bundles.scalars(plan, control, h, fraction)
+    write_step_values(grid.params, scalars, int(settings.self_contact), grid.T - 1, settings.friction,
                       grid.allowed_depth(settings.tolerance), settings.iterations, 1)
     drive = bundles.drive(arrays_)
     advance_with_strand_contact(flags, settings.friction > 0.0, bundles.model, bundles.state, drive,
                                 bundles.contacts, grid.args())
     if grid.params.to_numpy()[DONE] > 0.5:
         return 0.0
-    args = (flags, *scalars, bundles.model, bundles.state, drive, bundles.contacts)
+    args = (flags, scalars, bundles.model, bundles.state, drive, bundles.contacts)
     model, state = bundles.rods
     depth = resolve_strand_contacts(grid, settings, model, state,
                                     lambda: run_stages(PROJECTION, PROJECTION + 1, *args),

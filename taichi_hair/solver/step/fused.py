@@ -6,22 +6,19 @@ import taichi as ti
 
 from ...rods.arrays import Ints2, Vec3s1, Vec3s2
 from ...rods.spread import spread_factor
-from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepScalars
+from .bundles import ContactArgs, DriveArgs, gather_scalars, ModelArgs, ScalarArgs, StateArgs
 from .plan import BAD, StageFlags
 from .stages import STAGE_FUNCS, strand_place_root
 
 
 @ti.kernel
-def advance_strands(n_steps: int, fl: ti.template(), h: float, k0: float, drag: float, max_speed: float,
-                    projection_tol: float, projection_iterations: ti.i32, twist_tol: float,
-                    twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
-                    md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
-    """n_steps steps of sc.h [s] from step index sc.k0 (time k0 h) for every strand (head poses as in the module
-    doc; tool_points[k] are the tools at the start of step k). counters[s, BAD] = the first
-    step where strand s failed (that strand stops there), -1 if none. One thread per strand."""
-    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
-                     projection_iterations=projection_iterations, twist_tol=twist_tol,
-                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+def advance_strands(n_steps: int, fl: ti.template(), sa: ScalarArgs, md: ModelArgs, st: StateArgs, dr: DriveArgs,
+                    co: ContactArgs):
+    """n_steps steps of sa.h [s] from step index sa.k0 (time k0 h) for every strand (head poses
+    as in the module doc; tool_points[k] are the tools at the start of step k). counters[s, BAD]
+    = the first step where strand s failed (that strand stops there), -1 if none. One thread
+    per strand."""
+    sc = gather_scalars(sa)
     factor = spread_factor(st.x.shape[0])
     for t in range(st.x.shape[0] * factor):
         if t % factor == 0:
@@ -47,16 +44,12 @@ def compiled_variants() -> list[dict]:
 
 
 @ti.kernel
-def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), h: float, k0: float,
-               drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
-               twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float,
-               pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
+def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), sa: ScalarArgs, md: ModelArgs,
+               st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """Stages first..last-1 of STAGES for one step of every strand; counters[s, BAD] is reset
     by the launch that runs the first stage and set to 0 where a stage failed. One thread per
     strand."""
-    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
-                     projection_iterations=projection_iterations, twist_tol=twist_tol,
-                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    sc = gather_scalars(sa)
     factor = spread_factor(st.x.shape[0])
     for t in range(st.x.shape[0] * factor):
         if t % factor == 0:

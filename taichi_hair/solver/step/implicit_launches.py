@@ -9,7 +9,7 @@ from ...rods.state import HIST_DX, HIST_ELASTIC, HIST_V
 from ..collisions import head_poses
 from ..implicit import (CORRECTION_TOL, length_residual, MAX_CORRECTIONS, strand_implicit_assemble,
                         strand_implicit_finish)
-from .bundles import ContactArgs, DriveArgs, ModelArgs, StateArgs, StepBundles, StepScalars
+from .bundles import ContactArgs, DriveArgs, gather_scalars, ModelArgs, ScalarArgs, StateArgs, StepBundles
 from .fused import run_stages
 from .plan import BAD, TWIST_NONE
 from ...rods.spread import spread_factor
@@ -25,6 +25,7 @@ from .stages import INTEGRATION, place_root_and_pins, stage_forces, STAGE_FUNCS,
 # since a launch costs ~15 us per array) and take the solution; a correction round runs only
 # while some strand needs it.
 ASSEMBLE, FINISH = range(2)
+ROUNDS = MAX_CORRECTIONS + 1  # a step's rounds: the predictor and its corrections
 
 
 @ti.func
@@ -45,22 +46,21 @@ def implicit_round(s, k, j, node_count: ti.template(), inv_mass: ti.template(), 
 
 
 @ti.kernel
-def implicit_part(part: ti.template(), correction: ti.template(), forces: ti.template(), k: ti.i32, j: ti.i32,
-                  fl: ti.template(), h: float, k0: float, drag: float, max_speed: float, projection_tol: float,
-                  projection_iterations: ti.i32, twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32,
-                  pin_f0: float, pin_df: float, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs,
+def implicit_part(part: ti.template(), correction: ti.template(), forces: ti.template(), step_round: ti.i32,
+                  fl: ti.template(), sa: ScalarArgs, md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs,
                   more: ti.template()):
     """The assembly (ASSEMBLE) or the solution's update (FINISH) of round j of step k's implicit
     integration (k as advance_strands' k) for every strand that takes it (implicit_round);
-    correction: 0 the predictor (round 0), 1 a length correction (implicit.py); forces: the
-    forces stage first (the predictor's ASSEMBLE of a fused step, where it also resets
-    counters[s, BAD] at k = 0). The predictor's FINISH places the root and the pins; a
-    correction's sets more[None] = 1 (a 0-d int field: Taichi caps a kernel's arguments at 64
-    numbers and arrays) where an edge is still off by more than CORRECTION_TOL.
+    step_round = k ROUNDS + j, one argument: the kernel's arguments are at Taichi's cap of 64
+    numbers and arrays (the bundles' members count one each). correction: 0 the predictor
+    (round 0), 1 a length correction (implicit.py); forces: the forces stage first (the
+    predictor's ASSEMBLE of a fused step, where it also resets counters[s, BAD] at k = 0). The
+    predictor's FINISH places the root and the pins; a correction's sets more[None] = 1 (a 0-d
+    int field, for the same cap) where an edge is still off by more than CORRECTION_TOL.
     One thread per strand."""
-    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
-                     projection_iterations=projection_iterations, twist_tol=twist_tol,
-                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    sc = gather_scalars(sa)
+    k = step_round // ROUNDS
+    j = step_round % ROUNDS
     factor = spread_factor(st.x.shape[0])
     for t in range(st.x.shape[0] * factor):
         if t % factor == 0:
@@ -103,15 +103,11 @@ def implicit_solve(k: ti.i32, j: ti.i32, node_count: Ints1, inv_mass: Scalars2, 
 
 
 @ti.kernel
-def implicit_stages(first: ti.template(), last: ti.template(), k: ti.i32, fl: ti.template(), h: float, k0: float,
-                    drag: float, max_speed: float, projection_tol: float, projection_iterations: ti.i32,
-                    twist_tol: float, twist_iterations: ti.i32, n_analytic: ti.i32, pin_f0: float, pin_df: float,
+def implicit_stages(first: ti.template(), last: ti.template(), k: ti.i32, fl: ti.template(), sa: ScalarArgs,
                     md: ModelArgs, st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """STAGES first..last-1 of step k (after the implicit integration) for every strand that has
     not failed in an earlier step; counters[s, BAD] = k where one fails. One thread per strand."""
-    sc = StepScalars(h=h, k0=k0, drag=drag, max_speed=max_speed, projection_tol=projection_tol,
-                     projection_iterations=projection_iterations, twist_tol=twist_tol,
-                     twist_iterations=twist_iterations, n_analytic=n_analytic, pin_f0=pin_f0, pin_df=pin_df)
+    sc = gather_scalars(sa)
     factor = spread_factor(st.x.shape[0])
     for t in range(st.x.shape[0] * factor):
         if t % factor == 0:
@@ -138,19 +134,19 @@ def correction_flag():
 def implicit_integrate(bundles: StepBundles, args: tuple, k: int, forces: bool) -> None:
     """Step k's implicit integration (with `forces`, the forces stage first): the predictor,
     then rounds of length corrections while a strand needs one (implicit_round), at most
-    MAX_CORRECTIONS; args: implicit_part's from fl on."""
+    MAX_CORRECTIONS; args: implicit_part's from fl on (flags and the bundles)."""
     model, state = bundles.rods
     arrays_ = (model.node_count, model.inv_mass, model.rest_length, state.x, state.counters, state.blocks,
                state.block_rhs)
     more = correction_flag()
-    for j in range(MAX_CORRECTIONS + 1):
+    for j in range(ROUNDS):
         if j >= 2 and not more[None]:
             break
         more[None] = 0
         correction = min(j, 1)
-        implicit_part(ASSEMBLE, correction, forces and j == 0, k, j, *args, more)
+        implicit_part(ASSEMBLE, correction, forces and j == 0, k * ROUNDS + j, *args, more)
         implicit_solve(k, j, *arrays_)
-        implicit_part(FINISH, correction, False, k, j, *args, more)
+        implicit_part(FINISH, correction, False, k * ROUNDS + j, *args, more)
 
 
 def advance_implicit(bundles: StepBundles, args: tuple, n_steps: int) -> None:

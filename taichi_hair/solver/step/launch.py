@@ -1,7 +1,7 @@
 """The drivers' entry points: a launch of the fused step (explicit or implicit), one staged step,
 one projection."""
 
-from .bundles import launch_flags, step_scalars, StepBundles
+from .bundles import launch_flags, StepBundles
 from .fused import advance_strands, clear_bad, run_stages
 from .implicit_launches import advance_implicit, run_stage_range
 from .plan import stage_flags, StepPlan
@@ -15,7 +15,7 @@ def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: in
     nodes are min(1, f0 + (k + 1) df) of the way from start to end (see pins.py); clips: a clip
     holds twist or slides."""
     flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
-    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
+    args = (flags, bundles.scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
     if flags.implicit:
         advance_implicit(bundles, args, n_steps)
@@ -32,7 +32,7 @@ def staged_step(bundles: StepBundles, plan: StepPlan, model, state, control, h: 
     again between its passes. With `timers(name)` (a context manager timing each stage; it must
     synchronise) every stage runs in a launch of its own."""
     flags, arrays_, fraction = launch_flags(plan, control, pins)
-    args = (flags, *step_scalars(plan, control, h, fraction), bundles.model, bundles.state,
+    args = (flags, bundles.scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
     if timers is None:
         first = 0
@@ -63,5 +63,5 @@ def project_once(bundles: StepBundles, plan: StepPlan, control, h: float = 1.0) 
     contact solve."""
     flags = stage_flags(plan, contacts=True, pins=False, shake=False)
     clear_bad(bundles.state.counters)
-    run_stages(PROJECTION, PROJECTION + 1, flags, *step_scalars(plan, control, h), bundles.model, bundles.state,
+    run_stages(PROJECTION, PROJECTION + 1, flags, bundles.scalars(plan, control, h), bundles.model, bundles.state,
                bundles.drive(), bundles.contacts)

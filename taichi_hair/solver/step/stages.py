@@ -5,8 +5,8 @@ import taichi as ti
 from ...rods.arrays import point, step_displacement, vec3
 from ...rods.frames import strand_frames, strand_material_frames
 from ...rods.rod import strand_elastic_forces
-from ...rods.twist import (CAPPED, STALLED, strand_held_twist_forces, strand_kmoch_forces,
-                           strand_twist_kmoch, strand_twist_quasistatic)
+from ...rods.twist import CAPPED, STALLED, strand_twist_kmoch, strand_twist_quasistatic
+from ...rods.twist_forces import strand_held_twist_forces, strand_kmoch_forces
 from ...world.forces import air_velocity, grab_force, gusting_wind
 from ..collisions import head_poses, head_rotate
 from ..implicit import record_elastic_change, strand_implicit_velocities
@@ -136,15 +136,11 @@ def stage_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.template
     """force = elastic (with Kmoch's rule's total-derivative term) + gravity, drag, wind, grabs
     + user forces."""
     clamp = ti.static(fl.root_mode == ROOT_CLAMPED)
-    strand_elastic_forces(s, clamp, fl.rotation, st.x, md.node_count, st.kb, st.m1, st.m2, st.theta,
-                          st.root_t, st.root_u, md.rest_kappa, md.voronoi, md.stiffness, st.force)
+    strand_elastic_forces(s, clamp, fl.rotation, md, st)
     if ti.static(fl.twist_mode == TWIST_KMOCH):
-        strand_kmoch_forces(s, clamp, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                            st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, st.force)
+        strand_kmoch_forces(s, clamp, md, st)
     if ti.static(fl.clips):
-        strand_held_twist_forces(s, clamp, fl.rotation, st.x, md.node_count, st.bishop_u, st.bishop_v, st.kb, st.theta,
-                                 st.root_t, md.rest_kappa, md.rest_twist, md.voronoi, md.stiffness, dr.clip,
-                                 st.force)
+        strand_held_twist_forces(s, clamp, fl.rotation, md, st, dr.clip)
     if ti.static(fl.implicit):
         record_elastic_change(s, md, st)
     if ti.static(fl.external or fl.touch):
