@@ -64,7 +64,7 @@ def test_the_head_shakes_on_the_bust_without_showing_a_seam(degrees):
     assert capsule_out < 0.0 and top_out < 0.0
 
 
-@pytest.mark.parametrize("turning", [False, True])
+@pytest.mark.parametrize("turning", [pytest.param(False, marks=pytest.mark.slow), True])  # still: a long run
 def test_hair_rests_on_the_shoulder_while_the_head_turns(turning):
     """Strands hanging from above the right shoulder fall onto it and stay outside the bust's
     exact surface, the head's grid colliding in the same pass (two distance grids); with the head
