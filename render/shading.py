@@ -2,7 +2,7 @@
 
 All radiometric quantities are linear RGB. Hair is shaded per vertex (tangent from the
 neighbouring vertices) and interpolated along segments; meshes are shaded per pixel in
-`raster.shade_mesh`.
+`shade_mesh` below.
 
 Kajiya-Kay with shifted lobes (Scheuermann 2004, after Marschner et al. 2003): with T the unit
 tangent, L the direction to the light, V to the eye and H = (L + V)/|L + V|, the longitudinal
