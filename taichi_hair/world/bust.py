@@ -4,10 +4,11 @@ Head-local coordinates as in `taichi_hair.world.headmesh` (metres, +z up, the fa
 The bust is a stack of horizontal superellipses |x / a|^p + |(y - c) / b|^p = 1 whose half
 width a(z), half depth b(z), centre c(z) and exponent p(z) change smoothly with height:
 
-- the neck: round (p = 2), radius 0.052 m at its top (z = -0.125 m, inside the head's neck
-  capsule, radius 0.055 m, which turns with the head) widening to 0.062 m by z = -0.18 m, so
-  that the capsule disappears into it; its centre follows the capsule's forward tilt;
-- the shoulders: the width grows from the neck to 0.185 m at z = -0.27 m along a smoothstep,
+- the neck: round (p = 2), radius 0.042 m at its top (z = -0.135 m, inside the head's neck
+  capsule, radius 0.055 m, which turns with the head) widening to 0.07 m by z = -0.2 m, so
+  that the capsule disappears into it, also with the head turned by 40 degrees; its centre
+  follows the capsule's forward tilt;
+- the shoulders: the width grows from the neck to 0.18 m at z = -0.255 m along a smoothstep,
   whose flanks are vertical at both ends: the neck's sides, the slope of the trapezius, the
   rounded shoulder;
 - the chest: deeper (0.11 m) and slightly forward, tapering a little in width where the arms
@@ -17,37 +18,32 @@ Rings are spaced evenly along the outline (a(z), z), so the slope of the shoulde
 rings as the neck. The surface is closed by a flat disc at each end (the top one hidden inside
 the neck capsule), outward oriented and 2-manifold by construction; the tests check all three.
 It is drawn as it is and, through its signed-distance grid, is the collider the hair meets
-(`taichi_hair.world.scene.Head.default`), attached to the world: the head turns on it.
+(`taichi_hair.world.scene.Head.default`): in the world, the head turning on it, or turned
+with the head (a turntable).
 """
-
 import functools
 
 import numpy as np
 
+from .headmesh import NECK_CAPSULE, smoothstep
 from .sdf import SignedDistanceGrid
 
 NECK_TOP = -0.135  # [m] the bust's top, inside the head's neck capsule
 BASE = -0.56  # [m] the flat base
 SHOULDER_HALF_WIDTH = 0.18  # [m]
 NECK_RADIUS = (0.042, 0.07)  # [m] at the top, and from z = -0.2 m down
-CAPSULE_AXIS = ((0.0, -0.015, -0.05), (0.0, -0.03, -0.22))  # the head's neck capsule (headmesh)
-
-
-def _smooth(edge0, edge1, x):
-    u = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
 
 
 def bust_section(z):
     """(a, b, c, p) [m, m, m, 1] of the horizontal section at heights z [m] (arrays): half width
     along x, half depth along y, the centre's y, and the superellipse exponent."""
     z = np.asarray(z, dtype=np.float64)
-    neck = NECK_RADIUS[0] + (NECK_RADIUS[1] - NECK_RADIUS[0]) * _smooth(NECK_TOP, -0.2, z)
-    shoulders = _smooth(-0.165, -0.255, z)
-    a = neck + (SHOULDER_HALF_WIDTH - neck) * shoulders - 0.02 * _smooth(-0.32, -0.52, z)
-    chest = _smooth(-0.22, -0.36, z)
-    b = neck + (0.085 - neck) * _smooth(-0.165, -0.25, z) + 0.025 * chest
-    (_, y0, z0), (_, y1, z1) = CAPSULE_AXIS
+    neck = NECK_RADIUS[0] + (NECK_RADIUS[1] - NECK_RADIUS[0]) * smoothstep(NECK_TOP, -0.2, z)
+    shoulders = smoothstep(-0.165, -0.255, z)
+    a = neck + (SHOULDER_HALF_WIDTH - neck) * shoulders - 0.02 * smoothstep(-0.32, -0.52, z)
+    chest = smoothstep(-0.22, -0.36, z)
+    b = neck + (0.085 - neck) * smoothstep(-0.165, -0.25, z) + 0.025 * chest
+    (_, y0, z0), (_, y1, z1), _ = NECK_CAPSULE
     axis = y0 + (y1 - y0) * (np.clip(z, z1, z0) - z0) / (z1 - z0)
     c = axis + (-0.02 - axis) * shoulders + 0.01 * chest
     p = 2.0 + 0.5 * shoulders

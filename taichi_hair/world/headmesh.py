@@ -20,6 +20,7 @@ import os
 import numpy as np
 
 SEMI_AXES = (0.08, 0.10, 0.115)  # [m] cranium ellipsoid (x: half width, y: half depth, z: half height)
+NECK_CAPSULE = ((0.0, -0.015, -0.05), (0.0, -0.03, -0.22), 0.055)  # [m] (p0, p1, radius), turns with the head
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -142,7 +143,8 @@ def _bump(x, y, z, centre, sigma):
     return np.exp(-sum(((q - c) / s) ** 2 for q, c, s in zip((x, y, z), centre, sigma) if s is not None))
 
 
-def _smooth(edge0, edge1, x):
+def smoothstep(edge0, edge1, x):
+    """0 below edge0, 1 beyond edge1, Hermite 3u^2 - 2u^3 between (edge1 < edge0 runs downward)."""
     u = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 
@@ -151,15 +153,15 @@ def head_surface(u: np.ndarray) -> np.ndarray:
     """Head surface point [m] for each unit direction u [V, 3] (see the module docstring)."""
     a, b, c = SEMI_AXES
     x, y, z = a * u[:, 0], b * u[:, 1], c * u[:, 2]
-    front = _smooth(0.2, 0.6, u[:, 1])  # 1 on the face, 0 on the sides and back
-    lower = _smooth(-0.02, -0.11, z)  # 0 above the cheekbones, 1 at the chin
+    front = smoothstep(0.2, 0.6, u[:, 1])  # 1 on the face, 0 on the sides and back
+    lower = smoothstep(-0.02, -0.11, z)  # 0 above the cheekbones, 1 at the chin
     # jaw: the lower head shifts forward (chin ahead of the neck) and narrows toward the chin
     y = y + 0.04 * lower
-    x = x * (1.0 - 0.3 * lower * _smooth(-0.2, 0.5, u[:, 1]))
+    x = x * (1.0 - 0.3 * lower * smoothstep(-0.2, 0.5, u[:, 1]))
     # occiput to nape: the back of the skull curves in toward the neck
-    y = y * (1.0 - 0.45 * _smooth(-0.02, -0.1, z) * _smooth(0.0, -0.4, u[:, 1]))
+    y = y * (1.0 - 0.45 * smoothstep(-0.02, -0.1, z) * smoothstep(0.0, -0.4, u[:, 1]))
     # face relief along +y: brow ridge, eye sockets, nose (tip low, bridge narrow), lips, chin
-    nose_width = 0.007 + 0.006 * _smooth(0.02, -0.035, z)  # narrow bridge, wide nostrils
+    nose_width = 0.007 + 0.006 * smoothstep(0.02, -0.035, z)  # narrow bridge, wide nostrils
     nose_fall = np.where(z < -0.026, 0.012, 0.045)  # long slope above the tip, short below
     nose = 0.024 * np.exp(-(x / nose_width) ** 2 - ((z + 0.026) / nose_fall) ** 2)
     brow = 0.005 * _bump(x, None, z, (0.0, None, 0.032), (0.05, None, 0.009))
@@ -169,7 +171,7 @@ def head_surface(u: np.ndarray) -> np.ndarray:
     chin = 0.007 * _bump(x, None, z, (0.0, None, -0.097), (0.022, None, 0.012))
     y = y + front * (nose + brow - eyes + lips + chin)
     # ears: flattened bumps on the sides at eye-to-nose height, slightly behind the centre
-    side = _smooth(0.55, 0.85, np.abs(u[:, 0]))
+    side = smoothstep(0.55, 0.85, np.abs(u[:, 0]))
     ear_r2 = ((y + 0.008) / 0.013) ** 2 + ((z + 0.008) / 0.026) ** 2
     ear = 0.012 * side * np.exp(-ear_r2 ** 2)  # super-Gaussian: a flat-topped disc, not a blob
     x = x + np.sign(x) * ear
@@ -182,8 +184,8 @@ def scalp_mask(points: np.ndarray) -> np.ndarray:
     (-0.07 m at the back). The hairline height depends on the azimuth |atan2(x, y)| from the
     face (0 front, pi/2 ears, pi back)."""
     azimuth = np.abs(np.arctan2(points[:, 0], points[:, 1]))
-    temple = 0.058 - 0.022 * _smooth(0.5, 1.2, azimuth)
-    hairline = temple + (-0.07 - temple) * _smooth(1.75, 2.7, azimuth)
+    temple = 0.058 - 0.022 * smoothstep(0.5, 1.2, azimuth)
+    hairline = temple + (-0.07 - temple) * smoothstep(1.75, 2.7, azimuth)
     return points[:, 2] > hairline
 
 
@@ -198,7 +200,7 @@ def default_head(resolution: int = 4) -> HeadModel:
         raise ValueError(f"resolution must be an integer subdivision count in [2, 6], got {resolution!r}")
     u, faces = icosphere(int(resolution))
     vertices = head_surface(u)
-    capsules = (((0.0, -0.015, -0.05), (0.0, -0.03, -0.22), 0.055),)
+    capsules = (NECK_CAPSULE,)
     return HeadModel(vertices=vertices, faces=faces, scalp=scalp_mask(vertices), capsules=capsules)
 
 
