@@ -8,6 +8,8 @@ import platform
 import sys
 from pathlib import Path
 
+from ..diskcache import CACHE_ENV, cache_folder
+
 # extra name -> (module it brings, distribution whose version is shown, what it is for)
 EXTRAS = {
     "test": ("pytest", "pytest", "the test suite"),
@@ -37,6 +39,14 @@ def _size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
 
 
+def _geometry_cache() -> str:
+    folder = cache_folder()
+    if folder is None:
+        return f"off ({CACHE_ENV}=off): head and bust distance grids and grooms are computed in every run"
+    return (f"{folder} ({_size(folder) / 1e6:.1f} MB; {CACHE_ENV} moves it, {CACHE_ENV}=off turns it off; "
+            f"distance grids and grooms computed once)")
+
+
 def report() -> list[tuple[str, str]]:
     """(label, value) rows; starts no Taichi program (no kernels, no ti.init)."""
     import taichi as ti
@@ -54,7 +64,8 @@ def report() -> list[tuple[str, str]]:
             ("numpy", _version("numpy") or "?"),
             ("arches available", ", ".join(arches) + " (taichi_hair's default: cpu)"),
             ("kernel cache", f"{cache} ({_size(cache) / 1e6:.1f} MB; TI_OFFLINE_CACHE_FILE_PATH moves it; "
-                             f"a cold cache compiles kernels again on the first frame)")]
+                             f"a cold cache compiles kernels again on the first frame)"),
+            ("geometry cache", _geometry_cache())]
     for extra, (module, distribution, purpose) in EXTRAS.items():
         found = importlib.util.find_spec(module) is not None
         state = f"installed ({distribution} {_version(distribution) or '?'})" if found else \

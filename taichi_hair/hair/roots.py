@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ..diskcache import cached_arrays
 from ..rods.groom import Groom, arc_lengths, resample_by_arc_length
 from ..validation import choice, integer, real, vector3
 from ..world.headmesh import HeadModel
@@ -273,6 +274,17 @@ def scalp_groom(head: HeadModel, n_guides: int, *, style: str = "straight", leng
     comb = vector3("comb", comb, normalise=True)
     if collider is not None and not all(hasattr(collider, a) for a in ("sample", "gradient")):
         raise ValueError(f"collider must be a SignedDistanceGrid or None, got {type(collider).__name__}")
+    inputs = (head, n_guides, style, length, length_variation, n_nodes, comb, comb_strength, droop_length,
+              wave_amplitude, wave_wavelength, curl_radius, curl_pitch, shape_variation, root_offset,
+              collider, clearance, seed)
+    nodes = cached_arrays("scalp_groom", inputs, lambda: {"nodes": _grow(*inputs)})["nodes"]
+    return Groom.from_polylines(nodes)
+
+
+def _grow(head, n_guides, style, length, length_variation, n_nodes, comb, comb_strength, droop_length,
+          wave_amplitude, wave_wavelength, curl_radius, curl_pitch, shape_variation, root_offset,
+          collider, clearance, seed):
+    """scalp_groom's nodes [S, n_nodes, 3] m from its validated arguments."""
     roots, normals = sample_scalp(head, n_guides, seed=seed)
     rng = np.random.default_rng([seed, 1])  # a stream apart from the root sampling
     lengths = length * (1.0 + length_variation * rng.uniform(-1.0, 1.0, n_guides))
@@ -297,4 +309,4 @@ def scalp_groom(head: HeadModel, n_guides: int, *, style: str = "straight", leng
     nodes = _resample(curve, lengths, n_nodes)
     if collider is not None:
         nodes = _push_out(nodes, collider, clearance)
-    return Groom.from_polylines(nodes)
+    return nodes

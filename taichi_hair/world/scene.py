@@ -88,11 +88,14 @@ class Head:
                    body=default_bust(), body_attached=body)
 
 
+@dataclass(frozen=True, eq=False)
 class ColliderUnion:
     """Signed distance to the union of colliders (min over them), on the host."""
 
-    def __init__(self, colliders):
-        self.colliders = tuple(colliders)
+    colliders: tuple
+
+    def __post_init__(self):
+        object.__setattr__(self, "colliders", tuple(self.colliders))
 
     def _distances(self, points):
         return np.stack([host_distance(c, points) for c in self.colliders])

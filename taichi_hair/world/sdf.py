@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from ..diskcache import cached_arrays
 from ..validation import is_real
 
 PAIRS_PER_CHUNK = 1 << 19  # point-triangle pairs evaluated at once (~0.3 GB of temporaries)
@@ -85,14 +86,18 @@ class SignedDistanceGrid:
         if np.prod(counts) > 50_000_000:
             raise ValueError(f"spacing {spacing!r} m gives {np.prod(counts):,} grid points (max 50,000,000); "
                              "use a larger spacing")
-        dist, tri, sign = _band(mesh, lo, float(spacing), counts)
-        stamp = np.zeros(dist.shape, dtype=np.int64)  # round in which a point last changed
-        for round_ in range(1, MAX_SWEEP_ROUNDS + 1):
-            updates = sum(_sweep(mesh, lo, float(spacing), (dist, tri, sign, stamp), round_, axis, direction)
-                          for axis in range(3) for direction in (1, -1))
-            if updates == 0:
-                break
-        return cls(values=sign * np.sqrt(dist), origin=lo, spacing=float(spacing))
+
+        def build():
+            dist, tri, sign = _band(mesh, lo, float(spacing), counts)
+            stamp = np.zeros(dist.shape, dtype=np.int64)  # round in which a point last changed
+            for round_ in range(1, MAX_SWEEP_ROUNDS + 1):
+                updates = sum(_sweep(mesh, lo, float(spacing), (dist, tri, sign, stamp), round_, axis, direction)
+                              for axis in range(3) for direction in (1, -1))
+                if updates == 0:
+                    break
+            return {"values": sign * np.sqrt(dist)}
+        values = cached_arrays("sdf", (mesh.v, mesh.f, float(spacing), float(padding)), build)["values"]
+        return cls(values=values, origin=lo, spacing=float(spacing))
 
     # ---- sampling on the host ----------------------------------------------------------------
     def _cells(self, points):
