@@ -4,8 +4,8 @@ head's and bust's grids and growing a groom over them takes 10-30 s of numpy per
 the cache a later run with the same inputs loads the arrays in milliseconds.
 
 An entry's key is a SHA-256 over the inputs (arrays by dtype, shape and bytes; numbers by
-repr; dataclasses field by field) and over the source of every module of this package, so a
-changed input or a changed line of code computes afresh: an entry is returned only where the
+repr; dataclasses field by field), over the source of every module of this package and over
+numpy's version, so a changed input, a changed line of code or another numpy computes afresh: an entry is returned only where the
 computation would give the same arrays, byte for byte.
 
 Where: the folder in the environment variable TAICHI_HAIR_CACHE, else ~/.cache/taichi_hair;
@@ -81,7 +81,7 @@ def _feed(digest, value) -> None:
 def fingerprint(kind: str, *inputs) -> str:
     """The hex key of computation `kind` on `inputs` with this package's source; Uncacheable if
     an input is of a kind the cache cannot fingerprint."""
-    digest = hashlib.sha256(f"{kind};{source_digest()};".encode())
+    digest = hashlib.sha256(f"{kind};{source_digest()};numpy {np.__version__};".encode())
     for value in inputs:
         _feed(digest, value)
     return digest.hexdigest()
