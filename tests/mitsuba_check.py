@@ -287,12 +287,13 @@ def compare_images(spp: int = 64, out_dir=None, lights_deg=(-20.0, 0.0, 25.0),
             out_dir = Path(out_dir)
             slug = name.replace(" ", "_").replace(",", "").replace("+", "p").replace("-", "m")
             for key, out in (("ours", ours), ("mitsuba", theirs)):
-                write_png(out_dir / f"{slug}_{key}.png", _encode(out["rgb"]))
+                write_png(out_dir / f"{slug}_{key}.png", encode_srgb(out["rgb"]))
         rows.append(row)
     return rows
 
 
-def _encode(rgb) -> np.ndarray:
+def encode_srgb(rgb) -> np.ndarray:
+    """8-bit sRGB (..., 3) of linear colours, clipped to [0, 1]."""
     c = np.clip(rgb, 0.0, 1.0)
     s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
     return (s * 255 + 0.5).astype(np.uint8)

@@ -11,7 +11,8 @@ single scattering. Per case the table gives the mean hair luminance ratio ours /
 bounces), CIEDE2000 between the mean hair colours, their hue difference [deg], the
 single-scattering ratio, and each renderer's multiple-scattering gain (all bounces / single
 scattering, mean luminance). Mitsuba's images are cached in --out keyed by every parameter
-(delete the folder to regenerate them); --images writes side-by-side PNGs (ours | Mitsuba).
+(delete the folder to regenerate them); --images writes one sheet of side-by-side images
+(`write_sheet`: ours | Mitsuba, a row per material, a column per light).
 """
 
 import argparse
@@ -95,49 +96,70 @@ def hue_difference(rgb_a, rgb_b) -> float:
 
 
 def compare(materials=None, lights=None, spp: int = 32, cache="out/mitsuba_multiple",
-            images=None, size=(160, 120)) -> list[dict]:
+            images=None, size=(160, 120), single: bool = True, n_strands: int = 4000) -> list[dict]:
     """One dict per (material, light): mean hair colours (linear) of ours and Mitsuba's, all
-    bounces and single scattering, the luminance ratio, CIEDE2000, hue difference [deg],
-    single-scattering ratio and both gains."""
-    rows = []
+    bounces and (single) single scattering, the luminance ratio, CIEDE2000, hue difference
+    [deg], and (single) the single-scattering ratio and both gains. n_strands: the slab's
+    strands (`bundle`; 500: a single layer)."""
+    rows, cells = [], {}
     cache = Path(cache)
-    for mname in materials or MATERIALS:
+    materials, lights = materials or list(MATERIALS), lights or list(LIGHTS)
+    for mname in materials:
         material = MATERIALS[mname]
-        for lname in lights or LIGHTS:
-            scene = bundle(LIGHTS[lname], *size)
+        for lname in lights:
+            scene = bundle(LIGHTS[lname], *size, n_strands=n_strands)
             ours = render_ours(scene, material, multiple_scattering=True, shadow_resolution=512)
-            ours1 = render_ours(scene, material, multiple_scattering=False, shadow_resolution=512)
             theirs = mitsuba_cached(scene, material, spp, MAX_DEPTH, cache)
-            theirs1 = mitsuba_cached(scene, material, spp, 2, cache)
+            images_of = {"ours": ours, "mitsuba": theirs}
+            if single:
+                images_of["ours1"] = render_ours(scene, material, multiple_scattering=False,
+                                                 shadow_resolution=512)
+                images_of["mitsuba1"] = mitsuba_cached(scene, material, spp, 2, cache)
             cov = ours["alpha"]
-            c = {k: hair_mean_colour(o["rgb"], cov) for k, o in
-                 (("ours", ours), ("ours1", ours1), ("mitsuba", theirs), ("mitsuba1", theirs1))}
+            c = {k: hair_mean_colour(o["rgb"], cov) for k, o in images_of.items()}
             lum = {k: float(v @ LUMINANCE) for k, v in c.items()}
             row = {"material": mname, "light": lname, **c,
                    "ratio": lum["ours"] / lum["mitsuba"],
                    "delta_e": float(delta_e2000(linear_to_lab(c["ours"]), linear_to_lab(c["mitsuba"]))),
                    "hue": hue_difference(c["ours"], c["mitsuba"]),
-                   "single_ratio": lum["ours1"] / lum["mitsuba1"],
-                   "gain_ours": lum["ours"] / lum["ours1"],
-                   "gain_mitsuba": lum["mitsuba"] / lum["mitsuba1"],
                    "coverage_ratio": float(theirs["alpha"].sum() / cov.sum())}
+            if single:
+                row.update(single_ratio=lum["ours1"] / lum["mitsuba1"],
+                           gain_ours=lum["ours"] / lum["ours1"],
+                           gain_mitsuba=lum["mitsuba"] / lum["mitsuba1"])
             rows.append(row)
             if images is not None:
-                write_side_by_side(Path(images), f"{mname.replace(' ', '_')}_{lname}", ours, theirs)
+                cells[(mname, lname)] = (ours, theirs)
+    if images is not None:
+        write_sheet(Path(images), cells, materials, lights)
     return rows
 
 
-def write_side_by_side(folder: Path, name: str, ours: dict, theirs: dict) -> None:
-    """folder/ms_<name>.png: ours (left) and Mitsuba's (right), sRGB, one shared exposure
-    (the brighter image's 99th percentile of hair radiance maps to 1)."""
-    from mitsuba_check import _encode
+def write_sheet(path: Path, cells: dict, materials, lights) -> None:
+    """One PNG at path: a row per material, a column per light, each cell ours (left) beside
+    Mitsuba's (right) at half resolution (2 x 2 box means), sRGB, one exposure per cell (the
+    brighter image's 99th percentile of hair radiance maps to 1). cells[(material, light)]:
+    (ours, Mitsuba's) render dicts."""
+    from mitsuba_check import encode_srgb
     from render.video import write_png
-    hair = ours["alpha"] > 0.5
-    scale = max(np.percentile(ours["rgb"][hair], 99), np.percentile(theirs["rgb"][hair], 99), 1e-6)
-    gap = np.zeros((ours["rgb"].shape[0], 4, 3))
-    image = np.concatenate([ours["rgb"], gap, theirs["rgb"]], axis=1) / scale
-    folder.mkdir(parents=True, exist_ok=True)
-    write_png(folder / f"ms_{name}.png", _encode(image))
+
+    def half(rgb):
+        h, w = rgb.shape[0] // 2 * 2, rgb.shape[1] // 2 * 2
+        return rgb[:h, :w].reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3))
+
+    rows = []
+    for m in materials:
+        row = []
+        for name in lights:
+            ours, theirs = cells[(m, name)]
+            hair = ours["alpha"] > 0.5
+            scale = max(np.percentile(ours["rgb"][hair], 99), np.percentile(theirs["rgb"][hair], 99), 1e-6)
+            a, b = half(ours["rgb"]) / scale, half(theirs["rgb"]) / scale
+            row += [a, np.zeros((a.shape[0], 2, 3)), b, np.full((a.shape[0], 6, 3), 0.25)]
+        rows += [np.concatenate(row[:-1], axis=1)]
+        rows += [np.full((4, rows[-1].shape[1], 3), 0.25)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_png(path, encode_srgb(np.concatenate(rows[:-1], axis=0)))
 
 
 def format_table(rows) -> str:
@@ -154,13 +176,16 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default="out/mitsuba_multiple", help="Mitsuba image cache")
     p.add_argument("--spp", type=int, default=32)
-    p.add_argument("--images", default=None, help="folder for side-by-side PNGs")
+    p.add_argument("--images", default=None,
+                   help="PNG path for the sheet of side-by-side images (`write_sheet`)")
     p.add_argument("--materials", nargs="*", default=None, choices=list(MATERIALS))
     p.add_argument("--lights", nargs="*", default=None, choices=list(LIGHTS))
+    p.add_argument("--strands", type=int, default=4000, help="strands in the slab (500: one layer)")
     args = p.parse_args(argv)
     from render.runtime import init
     init("cpu")
-    print(format_table(compare(args.materials, args.lights, args.spp, args.out, args.images)))
+    print(format_table(compare(args.materials, args.lights, args.spp, args.out, args.images,
+                               n_strands=args.strands)))
 
 
 if __name__ == "__main__":
