@@ -1,7 +1,9 @@
-"""Dual scattering through the hair (Zinke et al. 2008) on top of the fibre model
-(`fibre_lobes`): the light reaching a vertex directly, forward-scattered through the fibres
-between it and the light (deep opacity map), and backscattered by the hair behind it, from
-the per-absorption averages of `fibre.dual_table`."""
+"""Multiple scattering through the hair after Zinke et al.'s dual scattering (2008) on top of
+the fibre model (`fibre_lobes`): the light reaching a vertex directly, forward-scattered
+through the fibres between it and the light (deep opacity map), and backscattered by the hair
+behind it, from the per-absorption averages of `fibre.dual_table`; four constants fitted
+against a path tracer (render/README.md, "Multiple scattering", has the model and the
+comparison)."""
 
 import math
 
@@ -11,8 +13,14 @@ from .camera import f32, vec3f
 from .fibre import N_SIGMA
 from .fibre_lobes import fasin, fexp, lobe_variance, sigma_coord
 
-# Zinke et al. 2008's density factors
-D_FORWARD, D_BACK = 0.7, 0.7
+# Zinke et al. 2008's density factors d_f, d_b, and the two constants of the forward-scattered
+# light: its transmittance falls by a_f per FORWARD_COUNT fibres of opacity, and the fraction
+# FORWARD_DIRECTIONAL of it still arrives from the light's direction. The four are fitted
+# against Mitsuba's path tracer on dense slabs of five hair colours lit from the front, the
+# side and behind (tests/mitsuba_multiple.py; Zinke's d_f = d_b = 0.7, a_f per fibre and
+# all of it spread out left light hair at 0.5-0.7 of the path tracer's luminance)
+D_FORWARD, D_BACK = 0.4, 0.8
+FORWARD_COUNT, FORWARD_DIRECTIONAL = 0.4, 0.1
 
 # a fibre's dual-scattering constants per channel (`dual_constants`): forward variance
 # beta_f^2, backscattered energy A_b, its shift Delta_b [rad] and variance sigma_b^2, log a_f
@@ -37,15 +45,19 @@ def gauss_lobe(theta_i: f32, theta_o: f32, var: f32) -> f32:
 @ti.func
 def dual_scattering(t: vec3f, l: vec3f, v: vec3f, sigma: vec3f, beta_m: f32, s: vec3f,
                     albedo: vec3f, terms: vec3f, alpha: f32, dtab: ti.template()) -> vec3f:
-    """Zinke et al. 2008's dual scattering for one directional light, per unit irradiance:
-    F = D (S + d_b f_back) + max(T_f - D, 0) d_f (S_G + d_b f_back^G), with n = terms[0]
-    fibres between the vertex and the light (deep opacity map), D = exp(-n) vis the direct
-    fraction, T_f = d_f a_f^n vis the forward-scattered transmittance, sigma_f^2 = n beta_f^2
+    """Multiple scattering for one directional light after Zinke et al. 2008's dual scattering,
+    per unit irradiance [1/sr], per channel:
+    F = D (S + d_b w_b f_back) + T_s d_f (w S + (1 - w) S_G + pi d_b w_b f_back^G), with
+    n = terms[0] fibres between the vertex and the light (deep opacity map), vis = terms[1]
+    the mesh visibility, D = exp(-n) vis the direct fraction, T_s = max(a_f^(k n) - exp(-n),
+    0) vis the forward-scattered light (k = FORWARD_COUNT), w = FORWARD_DIRECTIONAL the part
+    of it still arriving from the light's direction (scattered by S), sigma_f^2 = n beta_f^2
     its longitudinal spread; f_back the backscatter of the hair behind the vertex (weight
-    1 - exp(-terms[2])) as a (Gaussian) longitudinal lobe of energy A_b shifted by Delta_b, spread cos(phi) / 2
-    over the backward half in azimuth; S_G the light arriving spread out, a broadened lobe
-    carrying the fibre's albedo isotropically in azimuth. Each term integrates over incident
-    directions to its energy (A_b, the albedo)."""
+    w_b = 1 - exp(-terms[2])) as a (Gaussian) longitudinal lobe of energy A_b shifted by
+    Delta_b, spread cos(phi) / 2 over the backward half in azimuth (f_back^G: widened by
+    sigma_f^2); S_G the light arriving spread out, a broadened lobe carrying the fibre's albedo
+    isotropically in azimuth. Each lobe integrates over incident directions to its energy
+    (A_b, the albedo)."""
     v0 = lobe_variance(beta_m)
     us = vec3f(sigma_coord(sigma[0]), sigma_coord(sigma[1]), sigma_coord(sigma[2]))
     dc = dual_constants(us, v0, alpha, dtab)
@@ -105,9 +117,12 @@ def dual_scattering_c(t: vec3f, l: vec3f, v: vec3f, v0: f32, s: vec3f, albedo: v
         if direct * back_w > 1e-4:
             out[c] += (direct * f32(D_BACK) * back_w * a_back[c] * n_back
                        * gauss_lobe(theta_i, theta_o + shift[c], var_b[c]))
-        t_f = f32(D_FORWARD) * fexp(n * log_af[c]) * vis
-        if t_f - direct > 1e-4:
+        # exp(-n) < a_f^(k n) needs log a_f > -1 / k: hair dark in this channel forwards nothing
+        scattered = ti.max(fexp(f32(FORWARD_COUNT) * n * log_af[c]) - fexp(-n), f32(0.0)) * vis
+        if scattered > 1e-4:
             s_g = gauss_lobe(theta_i, theta_o, f32(4.0) * v0 + var_f) * albedo[c] * f32(0.5 / math.pi)
             f_back_g = a_back[c] * n_back * gauss_lobe(theta_i, theta_o + shift[c], var_b[c] + var_f)
-            out[c] += (t_f - direct) * f32(D_FORWARD) * (s_g + f32(D_BACK) * f_back_g)
+            out[c] += scattered * f32(D_FORWARD) * (
+                f32(FORWARD_DIRECTIONAL) * s[c] + f32(1.0 - FORWARD_DIRECTIONAL) * s_g
+                + f32(math.pi * D_BACK) * back_w * f_back_g)
     return out

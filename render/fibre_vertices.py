@@ -19,8 +19,8 @@ def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: Li
     `ambient` radiance; opacity), from the hair's (HairArgs) positions, absorption sigma and
     roughness beta_m and the fibre material's lobe tilts (`HairMaterial.shifts`) and device
     tables (FibreTableArgs). terms[k, i]: the vertex's (hair opacity towards light k, mesh
-    visibility, hair opacity behind it) from `shadows.shadow_terms`. dual: Zinke's dual
-    scattering (`fibre_dual.dual_scattering`); otherwise single scattering shadowed by
+    visibility, hair opacity behind it) from `shadows.shadow_terms`. dual: multiple
+    scattering (`fibre_dual.dual_scattering`, after Zinke's dual scattering); otherwise single scattering shadowed by
     exp(-density x opacity) x visibility. Tangent from the strand neighbours (root to tip). The
     view's part of the shading is computed once for all lights; the lights add in order after
     the first (with the ambient), as separate passes would. masked: only vertices with

@@ -27,15 +27,19 @@ from render.geometry import Hair, Mesh
 from render.shading import AmbientLight, DirectionalLight
 
 
-def _mitsuba():
+def _mitsuba(variant: str = "scalar_rgb"):
     import mitsuba as mi
-    mi.set_variant("scalar_rgb")
+    mi.set_variant(variant)
     return mi
 
 
 def mitsuba_bsdf(material: HairMaterial):
     """Mitsuba's `hair` BSDF with the material's parameters (air outside: ior 1)."""
-    mi = _mitsuba()
+    return _mitsuba().load_dict(mitsuba_bsdf_dict(material))
+
+
+def mitsuba_bsdf_dict(material: HairMaterial) -> dict:
+    """The scene description of `mitsuba_bsdf` (loads in any variant)."""
     d = {"type": "hair", "longitudinal_roughness": material.beta_m,
          "azimuthal_roughness": material.beta_n, "scale_tilt": material.alpha_deg,
          "int_ior": material.ior, "ext_ior": 1.0}
@@ -43,7 +47,7 @@ def mitsuba_bsdf(material: HairMaterial):
         d.update(eumelanin=material.eumelanin, pheomelanin=material.pheomelanin)
     else:
         d["sigma_a"] = {"type": "rgb", "value": list(material.sigma_a)}
-    return mi.load_dict(d)
+    return d
 
 
 def mitsuba_fibre_scattering(material: HairMaterial, to_light, to_eye, n_gamma: int = 128):
@@ -144,21 +148,26 @@ def _sphere_mesh(centre, radius, n: int = 48) -> Mesh:
                 colours=(0.0, 0.0, 0.0), specular=0.0)
 
 
-def render_ours(scene: Scene, material: HairMaterial, supersample: int = 2) -> dict:
-    """Our render: {"rgb" (H, W, 3) linear, "alpha" (H, W)} on black."""
+def render_ours(scene: Scene, material: HairMaterial, supersample: int = 2,
+                multiple_scattering: bool = False, shadow_resolution: int = 1024) -> dict:
+    """Our render: {"rgb" (H, W, 3) linear, "alpha" (H, W)} on black; single scattering with
+    shadows (maps of shadow_resolution texels a side) unless multiple_scattering."""
     from render.frame import RenderSettings, ShadowSettings, render_buffers
     hair = Hair(points=scene.points, widths=scene.width, material=material)
     meshes = [] if scene.sphere is None else [_sphere_mesh(*scene.sphere)]
-    settings = RenderSettings(supersample=supersample, layers=8, multiple_scattering=False,
-                              shadows=ShadowSettings(resolution=1024))
+    settings = RenderSettings(supersample=supersample, layers=8,
+                              multiple_scattering=multiple_scattering,
+                              shadows=ShadowSettings(resolution=shadow_resolution))
     return render_buffers(scene.camera, hair=hair, meshes=meshes, lights=list(scene.lights),
                           background=(0.0, 0.0, 0.0), settings=settings)
 
 
-def render_mitsuba(scene: Scene, material: HairMaterial, spp: int = 64, seed: int = 0) -> dict:
-    """Mitsuba's render (path tracer, max_depth 2: single scattering with shadow rays):
-    {"rgb" (H, W, 3) linear, "alpha" (H, W)}; fibres are B-splines through our polylines."""
-    mi = _mitsuba()
+def render_mitsuba(scene: Scene, material: HairMaterial, spp: int = 64, seed: int = 0,
+                   max_depth: int = 2, variant: str = "scalar_rgb") -> dict:
+    """Mitsuba's render (path tracer; max_depth 2: single scattering with shadow rays, more:
+    multiple scattering): {"rgb" (H, W, 3) linear, "alpha" (H, W)}; fibres are B-splines
+    through our polylines."""
+    mi = _mitsuba(variant)
     cam = scene.camera
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "strands.txt"
@@ -167,7 +176,7 @@ def render_mitsuba(scene: Scene, material: HairMaterial, spp: int = 64, seed: in
             ext = np.concatenate([[2 * strand[0] - strand[1]], strand, [2 * strand[-1] - strand[-2]]])
             lines += [f"{x:.9g} {y:.9g} {z:.9g} {scene.width / 2:.9g}" for x, y, z in ext] + [""]
         path.write_text("\n".join(lines))
-        d = {"type": "scene", "integrator": {"type": "path", "max_depth": 2},
+        d = {"type": "scene", "integrator": {"type": "path", "max_depth": max_depth},
              "sensor": {"type": "perspective", "fov": cam.fov_y, "fov_axis": "y",
                         "near_clip": cam.near,
                         "to_world": mi.ScalarTransform4f().look_at(origin=list(cam.eye),
@@ -176,7 +185,7 @@ def render_mitsuba(scene: Scene, material: HairMaterial, spp: int = 64, seed: in
                         "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
                         "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
                                  "pixel_format": "rgba", "rfilter": {"type": "box"}}},
-             "hair": {"type": "bsplinecurve", "filename": str(path), "bsdf": mitsuba_bsdf(material)}}
+             "hair": {"type": "bsplinecurve", "filename": str(path), "bsdf": mitsuba_bsdf_dict(material)}}
         for k, light in enumerate(scene.lights):
             if isinstance(light, DirectionalLight):
                 d[f"light{k}"] = {"type": "directional", "direction": list(light.direction),
@@ -278,12 +287,13 @@ def compare_images(spp: int = 64, out_dir=None, lights_deg=(-20.0, 0.0, 25.0),
             out_dir = Path(out_dir)
             slug = name.replace(" ", "_").replace(",", "").replace("+", "p").replace("-", "m")
             for key, out in (("ours", ours), ("mitsuba", theirs)):
-                write_png(out_dir / f"{slug}_{key}.png", _encode(out["rgb"]))
+                write_png(out_dir / f"{slug}_{key}.png", encode_srgb(out["rgb"]))
         rows.append(row)
     return rows
 
 
-def _encode(rgb) -> np.ndarray:
+def encode_srgb(rgb) -> np.ndarray:
+    """8-bit sRGB (..., 3) of linear colours, clipped to [0, 1]."""
     c = np.clip(rgb, 0.0, 1.0)
     s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
     return (s * 255 + 0.5).astype(np.uint8)
