@@ -259,7 +259,8 @@ class Simulator(Records, RodAccess, StartSetup):
         interval = _positive("interval", interval, "s")
         largest = self.dt if self.integrator == "implicit" else min(self.dt, self.stable_dt)
         count = max(1, math.ceil(interval / largest - 1e-9))
-        if self.integrator == "explicit" and self._strides_possible and self.bound.strands is not None:
+        if (self.integrator == "explicit" and self._strides_possible and not self._pins.active
+                and self.bound.strands is not None):
             count = self._fewest_strand_steps(interval, count)
         self._set_dt(interval / count)
         self._history_h = None
@@ -286,8 +287,8 @@ class Simulator(Records, RodAccess, StartSetup):
         if self.integrator == "implicit":
             return 1
         substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
-        if substeps == 1 or not self._strides_possible or self.bound.strands is None:
-            return substeps
+        if substeps == 1 or not self._strides_possible or self._pins.active or self.bound.strands is None:
+            return substeps  # pins are placed at every substep: every strand takes them all
         total, per_strand = strand_substeps(self.dt, self.bound.strands,
                                             min(self.max_substeps, MAX_STEPS_PER_LAUNCH))
         if total > MAX_STEPS_PER_LAUNCH or int(per_strand.min()) == total:
@@ -354,6 +355,8 @@ class Simulator(Records, RodAccess, StartSetup):
         ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev,
                              hold_twist=hold_twist, slide=slide,
                              directors=self.frames()["m1"] if hold_twist else None)
+        if self.strand_substeps is not None:
+            self._set_dt(self.dt)  # with pins every strand takes every substep (_substeps)
         return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
 
     def move_pin(self, pin_id, target) -> None:
@@ -372,6 +375,8 @@ class Simulator(Records, RodAccess, StartSetup):
         """Free the pin's node(s) from the next step on; they keep their last step's velocity.
         pin_id: an id or a sequence of ids; an unknown id is a ValueError."""
         self._pins.release(pin_id)
+        if not self._pins.active and self._strides_possible and self.integrator == "explicit":
+            self._set_dt(self.dt)  # the last pin gone: strands take their own substeps again
 
     def pins(self) -> list[dict]:
         """The live pins: dicts of id, strand, node, target ([3] m, the latest target in attach
