@@ -268,13 +268,13 @@ def prepare_run(script, *, overrides=None, settings=None, draw=True) -> Prepared
     if overrides:
         shot = Shot(**{**shot.__dict__, **overrides})
     sim = Simulator.from_scene(scene, dt=shot.frame_dt)
-    # a frame in the fewest equal steps within the explicit bound, one substep each (a fixed dt
-    # past the bound would run as substeps of up to half the bound)
+    if callable(getattr(module, "setup", None)):
+        module.setup(scene, sim)  # first: the pins it adds change how the steps are fitted
+    # a frame in the equal steps within the explicit bound that take the fewest strand steps (a
+    # fixed dt past the bound would run as substeps of up to half the bound)
     steps = sim.fit_step(1.0 / shot.fps)
     if steps != shot.steps_per_frame:
         shot = Shot(**{**shot.__dict__, "dt": 1.0 / (shot.fps * steps)})
-    if callable(getattr(module, "setup", None)):
-        module.setup(scene, sim)
     if not draw:
         return PreparedRun(module=module, scene=scene, shot=shot, sim=sim, interp=None, writer=None)
     interp = (module.interpolator(scene, sim) if callable(getattr(module, "interpolator", None))

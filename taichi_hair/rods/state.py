@@ -74,7 +74,12 @@ CONTACT_SLOTS = CONTACT_NORMAL + 1  # the slots every integrator has
 # first step at which a strand went bad in the last launch (-1: none)
 COUNTERS = {"projection_iterations": 0, "projection_cap_hits": 1, "projection_stalls": 2,
             "twist_iterations": 3, "bad_step": 4, "twist_cap_hits": 5, "twist_stalls": 6,
-            "twist_branch_switches": 7, "projection_iterations_sum": 8, "projections": 9}
+            "twist_branch_switches": 7, "projection_iterations_sum": 8, "projections": 9,
+            "step_stride": 10}
+# counters[s, "step_stride"] is no counter but strand s's step in launch steps (1, or the
+# simulator's substeps over the strand's own: solver/stability.strand_substeps), read by the fused
+# step where StageFlags.strides is on; it lives here because the fused kernel's 64 argument slots
+# are all taken (docs/architecture.md)
 
 
 @dataclass

@@ -24,12 +24,13 @@ def to_head(head: ti.template(), k, p):
 
 
 @ti.func
-def head_poses(k, fl: ti.template()):
-    """(now, prev): the head pose indices ending and starting step k of a launch (the step package's doc)."""
+def head_poses(k, fl: ti.template(), stride=1):
+    """(now, prev): the head pose indices ending and starting a step from launch step k over
+    `stride` launch steps (the step package's doc)."""
     now = 1
     prev = 0
     if ti.static(fl.moving_head):
-        now = k + 1
+        now = k + stride
         prev = k
     elif k > 0:
         prev = 1
@@ -95,13 +96,13 @@ def strand_reset_friction(s, st: ti.template(), travel=-1.0):
 
 
 @ti.func
-def collider_travel(s, k, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
+def collider_travel(s, k, stride, fl: ti.template(), md: ti.template(), st: ti.template(), dr: ti.template()):
     """A bound [m] on how far any collider surface near strand s moves during step k, relative to
     the world: the head's move |t' - t| + |R' - R|_F r at the strand's nodes (r: the farthest
     node's distance from the head's origin at the step's start; the projection's moves within the
     step change r by far less than a clearance) and every hand's move. 0 for a still head and no
-    hands."""
-    now, prev = head_poses(k, fl)
+    hands. The step runs from launch step k over `stride` of them."""
+    now, prev = head_poses(k, fl, stride)
     head = ti.static(dr.head)
     turn = 0.0
     for r in ti.static(range(3)):

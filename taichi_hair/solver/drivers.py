@@ -26,13 +26,17 @@ class FusedDriver:
     def __init__(self, bundles, plan, control):
         self.bundles, self.plan, self.control = bundles, plan, control
 
-    def launch_size(self, remaining: int) -> int:
-        """Steps the next launch takes of `remaining`."""
-        return min(remaining, MAX_STEPS_PER_LAUNCH)
+    strides = True  # strands may step at strides of their own (step.advance)
 
-    def launch(self, h: float, count: int, moving_head: bool, pins) -> None:
-        """`count` steps of h [s]; moving_head: one head pose per step loaded; pins as `step.advance`."""
-        advance(self.bundles, self.plan, self.control, h, count, moving_head, pins)
+    def launch_size(self, remaining: int, unit: int = 1) -> int:
+        """Steps the next launch takes of `remaining`: a multiple of `unit` (the steps a stride
+        divides) where `remaining` is."""
+        return min(remaining, max(unit, MAX_STEPS_PER_LAUNCH // unit * unit))
+
+    def launch(self, h: float, count: int, moving_head: bool, pins, strides: bool = False) -> None:
+        """`count` steps of h [s]; moving_head: one head pose per step loaded; pins and strides
+        as `step.advance`."""
+        advance(self.bundles, self.plan, self.control, h, count, moving_head, pins, strides)
 
 
 class StagedDriver:
@@ -42,15 +46,16 @@ class StagedDriver:
     velocities; `timers` (a callable name -> context manager that synchronises) times every stage."""
 
     name = "staged"
+    strides = False
 
     def __init__(self, bundles, plan, control, interaction=None, contact=None, timers=None):
         self.bundles, self.plan, self.control = bundles, plan, control
         self.interaction, self.contact, self.timers = interaction, contact, timers
 
-    def launch_size(self, remaining: int) -> int:
+    def launch_size(self, remaining: int, unit: int = 1) -> int:
         return 1
 
-    def launch(self, h: float, count: int, moving_head: bool, pins) -> None:
+    def launch(self, h: float, count: int, moving_head: bool, pins, strides: bool = False) -> None:
         model, state = self.bundles.rods
         staged_step(self.bundles, self.plan, model, state, self.control, h, self.timers,
                    self.interaction.stage if self.interaction is not None else None, pins,
@@ -63,6 +68,7 @@ class StrandContactDriver:
     deepest overlap [m] its extra contact passes found since `reset_depth`."""
 
     name = "strand contact"
+    strides = False
 
     def __init__(self, bundles, plan, control, grid, settings, small_nodes: int = SMALL_CONTACT_SCENE):
         self.bundles, self.plan, self.control = bundles, plan, control
@@ -74,10 +80,10 @@ class StrandContactDriver:
     def reset_depth(self) -> None:
         self.depth = 0.0
 
-    def launch_size(self, remaining: int) -> int:
+    def launch_size(self, remaining: int, unit: int = 1) -> int:
         return min(remaining, MAX_STEPS_PER_LAUNCH) if self.small else 1
 
-    def launch(self, h: float, count: int, moving_head: bool, pins) -> None:
+    def launch(self, h: float, count: int, moving_head: bool, pins, strides: bool = False) -> None:
         if self.small:
             steps_with_strand_contact(self.bundles, self.plan, self.control, h, count, self.grid,
                                       self.settings, moving_head, pins)

@@ -67,7 +67,8 @@ class Records:
         load_state(self, path)
 
     def stats(self, reset: bool = False) -> dict:
-        """Solver report since the last reset: time, steps, dt and substeps, the stability bound,
+        """Solver report since the last reset: time, steps, dt and substeps (and the strands'
+        mean share of them), the stability bound,
         projection iterations (max, and mean over strand-steps), its final residual (max), how many strand-steps ended above
         projection_tol at the iteration cap (projection_cap_hits) or stalled (projection_stalls:
         an iteration removed under 10 % of a residual already below projection_stall_below,
@@ -81,6 +82,10 @@ class Records:
             "time": self.time, "steps": self.steps_taken, "dt": self.dt, "integrator": self.integrator,
             "projection": self.plan.projection, "extensible": self.plan.extensible, "strain": self.plan.strain,
             "substeps": self.substeps,
+            # each strand's substeps per step, mean over strands (less than substeps where strands
+            # step within their own bounds: Simulator.strand_substeps)
+            "strand_substeps_mean": (float(self.substeps) if self.strand_substeps is None
+                                     else float(self.strand_substeps.mean())),
             "substep_dt": self.dt / self.substeps, "stable_dt": float(self.stable_dt),
             "projection_tol": self.plan.projection_tol,
             "projection_iterations_max": int(counters[:, COUNTERS["projection_iterations"]].max()),
@@ -110,4 +115,5 @@ class Records:
 
     def _reset_counters(self):
         self.rods.reset_counters()
+        self._strides_loaded = False  # the strides share the counters' array (rods/state.py)
 

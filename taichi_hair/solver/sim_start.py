@@ -12,7 +12,7 @@ from ..world.colliders import host_distance
 from .checkpoint import pose_rows
 from .collisions import root_keeps_collider
 from .control import load_poses, load_tools
-from .stability import MEASURE_ABOVE, curvature_stiffening, rest_turns, stable_time_step, stiffest_mode_ratio
+from .stability import MEASURE_ABOVE, curvature_stiffening, rest_turns, strand_time_steps, stiffest_mode_ratio
 from .step.launch import project_once
 from .step.plan import FAILED_ABOVE
 
@@ -79,8 +79,8 @@ class StartSetup:
         x = self.positions()
         start = Groom.from_polylines([x[s, : n] for s, n in enumerate(self.groom.node_counts)])
         self.bound = self.bound.tightened(
-            stable_time_step(start, self.model.materials, self.control.drag, self.stability_factor,
-                             kmoch=self.twist == "kmoch", measured=self._measured_stiffening()),
+            strand_time_steps(start, self.model.materials, self.control.drag, self.stability_factor,
+                              kmoch=self.twist == "kmoch", measured=self._measured_stiffening()),
             "the shape the colliders left the groom in at the start (sharp bends)")
         self.substeps = self._substeps(strict)
 

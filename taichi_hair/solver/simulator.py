@@ -20,14 +20,14 @@ from ..world.options import DEFAULT_PROJECTION_TOL, Environment, SolverOptions, 
 from ..world.scene import COLLIDERS as COLLIDER_TYPES
 from ..world.scene import Head
 from .checkpoint import pose_rows
-from .control import build_control, load_poses, load_tools
+from .control import MAX_STEPS_PER_LAUNCH, build_control, load_poses, load_tools
 from .drivers import StagedDriver, StrandContactDriver, choose_driver
 from .interaction import InteractionGrid
 from .pins import PinTable
 from .sim_records import Records
 from .sim_rods import RodAccess
 from .sim_start import StartSetup
-from .stability import default_stability_factor, scene_bound, substeps_for
+from .stability import default_stability_factor, scene_bound, strand_substeps, substeps_for
 from .step.contact import SMALL_CONTACT_SCENE
 from .step.fused import place_roots
 from .step.implicit_launches import seed_history
@@ -153,6 +153,13 @@ class Simulator(Records, RodAccess, StartSetup):
         self.max_substeps = solver.max_substeps
         lightest = float(self.model.mass.to_numpy()[self.model.inv_mass.to_numpy() > 0].min())
         self._measured_for = None  # (positions, _measured_stiffening's answer for them)
+        # strands step at strides of their own (each within its own bound) in the fused explicit
+        # step; touch tools are sampled at every substep, and pins force stride 1 per launch
+        self._strides_possible = (solver.strand_steps and solver.integrator == "explicit"
+                                  and solver.hair_interaction is None and solver.strand_contact is None
+                                  and not self.touch)
+        self.strand_substeps = None  # [S] each strand's substeps per step (None: all `substeps`)
+        self._strides_loaded = False
         self.bound = scene_bound(groom, self.model.materials, drag=drag, air_speed=_max_air_speed(wind),
                                  grabs=[(f"touch[{k}]", g.stiffness, lightest) for k, g in enumerate(self.touch)
                                         if isinstance(g, Grab)],
@@ -242,13 +249,19 @@ class Simulator(Records, RodAccess, StartSetup):
         return self.bound.dt
 
     def fit_step(self, interval: float) -> int:
-        """Take the fewest equal steps within both dt and the explicit bound that fill `interval`
-        [s] (a video frame, say): sets dt to interval / count, one substep each (the implicit
-        step: within dt alone), and returns the count. Substeps of a fixed dt would waste up to
-        half the bound: 0.992 ms steps over a 0.96 ms bound run as two of 0.496 ms."""
+        """Take equal steps of at most dt that fill `interval` [s] (a video frame, say), as few
+        strand steps in all as the explicit bound allows: sets dt to interval / count and returns
+        the count. The fewest steps within both dt and the bound, one substep each (the implicit
+        step: within dt alone); or, where strands keep strides of their own, the count whose
+        steps, each strand substepped within its own bound, take the fewest strand steps.
+        Substeps of a fixed dt would waste up to half the bound: 0.992 ms steps over a 0.96 ms
+        bound run as two of 0.496 ms."""
         interval = _positive("interval", interval, "s")
         largest = self.dt if self.integrator == "implicit" else min(self.dt, self.stable_dt)
         count = max(1, math.ceil(interval / largest - 1e-9))
+        if (self.integrator == "explicit" and self._strides_possible and not self._pins.active
+                and self.bound.strands is not None):
+            count = self._fewest_strand_steps(interval, count)
         self._set_dt(interval / count)
         self._history_h = None
         return count
@@ -267,10 +280,43 @@ class Simulator(Records, RodAccess, StartSetup):
             place_roots(self.control.head, md.root_frame, st.dx, st.root_t, st.root_u)  # x -> dx: scratch
 
     def _substeps(self, strict) -> int:
-        """Substeps per step: the explicit step's bound sets them; the implicit step needs none."""
+        """Substeps per step: the explicit step's bound sets them; the implicit step needs none.
+        Where strands may keep strides of their own, strand s takes strand_substeps[s] of a step
+        (a divisor of the substeps; stability.strand_substeps), each within its own bound."""
+        self.strand_substeps, self._strides_loaded = None, False
         if self.integrator == "implicit":
             return 1
-        return substeps_for(self.dt, self.bound, strict, self.max_substeps)
+        substeps = substeps_for(self.dt, self.bound, strict, self.max_substeps)
+        if substeps == 1 or not self._strides_possible or self._pins.active or self.bound.strands is None:
+            return substeps  # pins are placed at every substep: every strand takes them all
+        total, per_strand = strand_substeps(self.dt, self.bound.strands,
+                                            min(self.max_substeps, MAX_STEPS_PER_LAUNCH))
+        if total > MAX_STEPS_PER_LAUNCH or int(per_strand.min()) == total:
+            return substeps  # a step must fit one launch; or every strand needs every substep
+        self.strand_substeps = per_strand
+        return total
+
+    def _fewest_strand_steps(self, interval: float, most: int) -> int:
+        """The step count from ceil(interval / dt) to `most` (one substep per step) whose steps
+        take the fewest strand steps with each strand at its own substeps (strand_substeps);
+        of equal ones, the fewest substeps. At most ~200 counts are tried, evenly spread."""
+        strands = self.bound.strands
+        largest = min(self.max_substeps, MAX_STEPS_PER_LAUNCH)
+        best, best_cost = most, (most * len(strands), most)
+        fewest = max(1, math.ceil(interval / self.dt - 1e-9))
+        for count in range(fewest, most, max(1, (most - fewest) // 200)):
+            total, per_strand = strand_substeps(interval / count, strands, largest)
+            cost = (count * int(per_strand.sum()), count * total)
+            if total <= MAX_STEPS_PER_LAUNCH and cost < best_cost:
+                best, best_cost = count, cost
+        return best
+
+    def _load_strides(self) -> None:
+        """Each strand's stride (substeps over its own) into counters' step_stride column."""
+        counters = self.state.counters.to_numpy()
+        counters[:, COUNTERS["step_stride"]] = self.substeps // self.strand_substeps
+        self.state.counters.from_numpy(counters)
+        self._strides_loaded = True
 
     @property
     def head_transform(self):
@@ -309,6 +355,8 @@ class Simulator(Records, RodAccess, StartSetup):
         ids = self._pins.add(strand, node, target, clamp, attach, self.positions(), self._head_prev,
                              hold_twist=hold_twist, slide=slide,
                              directors=self.frames()["m1"] if hold_twist else None)
+        if self.strand_substeps is not None:
+            self._set_dt(self.dt)  # with pins every strand takes every substep (_substeps)
         return int(ids[0]) if np.ndim(strand) == 0 and np.ndim(node) == 0 else ids
 
     def move_pin(self, pin_id, target) -> None:
@@ -327,6 +375,8 @@ class Simulator(Records, RodAccess, StartSetup):
         """Free the pin's node(s) from the next step on; they keep their last step's velocity.
         pin_id: an id or a sequence of ids; an unknown id is a ValueError."""
         self._pins.release(pin_id)
+        if not self._pins.active and self._strides_possible and self.integrator == "explicit":
+            self._set_dt(self.dt)  # the last pin gone: strands take their own substeps again
 
     def pins(self) -> list[dict]:
         """The live pins: dicts of id, strand, node, target ([3] m, the latest target in attach
@@ -342,6 +392,11 @@ class Simulator(Records, RodAccess, StartSetup):
         if not (is_integer(n) and n >= 0):
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         n = int(n)
+        driver = self.driver if timers is None else StagedDriver(
+            self._bundles, self.plan, self.control, self.interaction, self._contact, timers)
+        strides = self.strand_substeps is not None and driver.strides
+        if strides and not self._strides_loaded:
+            self._load_strides()
         self._take_snapshot()
         self._pins.upload()
         h = self.dt / self.substeps
@@ -350,16 +405,14 @@ class Simulator(Records, RodAccess, StartSetup):
             seed_history(h, self.model.node_count, st.v, st.history, st.tension)
             self._history_h = h
         remaining = total = n * self.substeps
-        driver = self.driver if timers is None else StagedDriver(
-            self._bundles, self.plan, self.control, self.interaction, self._contact, timers)
         while remaining > 0:
-            count = driver.launch_size(remaining)
+            count = driver.launch_size(remaining, self.substeps if strides else 1)
             moving = self._load_launch(h, count)
             self.control.first_step = self._step_index()
             # pins move linearly over the whole call (pins.py)
             pins = ((*self._pins.device, (total - remaining) / total, 1.0 / total, self._pins.clips)
                     if self._pins.active else None)
-            driver.launch(h, count, moving, pins)
+            driver.launch(h, count, moving, pins, strides)
             bad = self.state.counters.to_numpy()[:, COUNTERS["bad_step"]]
             if np.any(bad >= 0):
                 self._diverged(h, bad)

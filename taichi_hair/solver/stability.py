@@ -88,7 +88,13 @@ def stiffest_mode_ratio(points: np.ndarray, mass: np.ndarray, hessian: np.ndarra
 
 def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STABILITY_FACTOR,
                      kmoch: bool = False, measured: dict | None = None) -> float:
-    """Largest explicit step h [s] the scene tolerates.
+    """Largest explicit step h [s] the scene tolerates: the smallest of strand_time_steps."""
+    return float(strand_time_steps(groom, materials, drag, factor, kmoch, measured).min())
+
+
+def strand_time_steps(groom, materials, drag: float, factor: float = DEFAULT_STABILITY_FACTOR,
+                      kmoch: bool = False, measured: dict | None = None) -> np.ndarray:
+    """Largest explicit step h [s] each strand tolerates [S].
 
     Bending: the stiffest discrete bending mode of a strand has omega ~ 4 / ds^2 sqrt(EI / rho A)
     and symplectic Euler needs h omega < 2, so h < factor * ds^2 sqrt(rho A / EI_eff) with
@@ -103,7 +109,7 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
     measured: {strand: EI_eff / EI} measured for this shape (stiffest_mode_ratio), taken in place
     of the rule for those strands (at least 1: a straight chain's margin).
     """
-    bound = math.inf
+    bounds = np.empty(len(materials))
     for s, m in enumerate(materials):
         p = groom.strand(s)
         lengths = np.linalg.norm(np.diff(p, axis=0), axis=1)
@@ -115,9 +121,8 @@ def stable_time_step(groom, materials, drag: float, factor: float = DEFAULT_STAB
         bend = factor * lengths.min() ** 2 * math.sqrt(m.linear_density / ei_eff)
         if kmoch and m.ellipticity > 1.0 and len(turns) and turns.max() > 0.0:
             bend *= kmoch_bound_factor(m.ellipticity)
-        bound = min(bound, bend if drag <= 0 else
-                    _damped_bound(bend, factor * 2.0 * m.linear_density / drag))
-    return bound
+        bounds[s] = bend if drag <= 0 else _damped_bound(bend, factor * 2.0 * m.linear_density / drag)
+    return bounds
 
 
 def _damped_bound(bend: float, damp: float) -> float:
@@ -144,14 +149,19 @@ class StabilityBound:
 
     dt: float
     reason: object
+    strands: np.ndarray | None = None  # [S] s: each strand's own bound (at most the scene's others)
 
     @property
     def cause(self) -> str:
         return self.reason() if callable(self.reason) else self.reason
 
-    def tightened(self, dt: float, cause: str) -> "StabilityBound":
-        """This bound, or (dt, cause) where that is tighter."""
-        return self if dt >= self.dt else StabilityBound(dt, cause)
+    def tightened(self, strands: np.ndarray, cause: str) -> "StabilityBound":
+        """This bound with each strand's bound at most `strands` [S] s; the cause is `cause`
+        where the smallest of them is tighter than this bound."""
+        tighter = strands if self.strands is None else np.minimum(self.strands, strands)
+        if float(strands.min()) >= self.dt:
+            return StabilityBound(self.dt, self.reason, tighter)
+        return StabilityBound(float(strands.min()), cause, tighter)
 
 
 def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), factor: float,
@@ -162,7 +172,8 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
     named when it at least halves the bending bound. Only the bound itself is computed here;
     the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
     when a refusal words it."""
-    with_drag = stable_time_step(groom, materials, drag, factor, kmoch=kmoch, measured=measured)
+    per_strand = strand_time_steps(groom, materials, drag, factor, kmoch=kmoch, measured=measured)
+    with_drag = float(per_strand.min())
 
     def bending_cause() -> str:
         bend = stable_time_step(groom, materials, 0.0, factor, kmoch=kmoch, measured=measured)
@@ -181,7 +192,26 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
     # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k)
     candidates += [StabilityBound(2.0 * factor * math.sqrt(mass / k), f"{name}.stiffness = {k:g} N/m")
                    for name, k, mass in grabs]
-    return min(candidates, key=lambda b: b.dt)
+    tightest = min(candidates, key=lambda b: b.dt)
+    others = min(b.dt for b in candidates[1:])  # the bounds every strand shares
+    return StabilityBound(tightest.dt, tightest.reason, np.minimum(per_strand, others))
+
+
+def strand_substeps(dt: float, strands: np.ndarray, largest: int) -> tuple:
+    """(M, m [S]): a step of dt [s] in M substeps, strand s taking m[s] of them at a time, so
+    that it steps dt / m[s] within its own bound strands[s] [s]. m[s] divides M (the strands
+    meet at every M-th of dt: head poses and the clock stay on one grid); among M from the
+    largest strand's need up to twice that (at most `largest`), the one with the fewest strand
+    steps, sum(m), and of those the smallest."""
+    need = np.maximum(1, np.ceil(dt / strands - 1e-9)).astype(np.int64)
+    top = int(need.max())
+    best = None
+    for total in range(top, max(top, min(2 * top, largest)) + 1):
+        divisors = np.array([d for d in range(1, total + 1) if total % d == 0])
+        m = divisors[np.searchsorted(divisors, need)]  # the smallest divisor covering each need
+        if best is None or m.sum() < best[1].sum():
+            best = (total, m)
+    return best
 
 
 def substeps_for(dt: float, bound: StabilityBound, strict: bool, max_substeps: int) -> int:

@@ -315,7 +315,7 @@ def update_twist_kernel(fl: ti.template(), twist_tol: float, twist_iterations: t
     counters[s, BAD] = 0 where it failed, else -1."""
     sc = StepScalars(h=1.0, k0=0.0, drag=0.0, max_speed=0.0, projection_tol=0.0, projection_iterations=0,
                      twist_tol=twist_tol, twist_iterations=twist_iterations, n_analytic=0, pin_f0=1.0,
-                     pin_df=0.0)
+                     pin_df=0.0, stride=1)
     for s in range(st.theta.shape[0]):
         st.counters[s, BAD] = -1
         if ti.static(fl.clips):

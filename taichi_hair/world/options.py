@@ -79,7 +79,9 @@ class SolverOptions:
     stability_factor: c of the explicit bound h = c ds^2 sqrt(rho A / EI), in (0, 2) (None: 0.5,
         or 0.4 with strand contact). max_substeps: automatic substeps per step at most.
     max_speed [m/s]: a node faster than this is a blow-up. strict: refuse a dt past the bound
-        instead of substepping.
+        instead of substepping. strand_steps: past the bound, each strand takes as many of the
+        substeps as its own bound needs (a divisor of them; explicit step without hair
+        interaction, strand contact or touch tools); False: every strand takes every substep.
     hair_interaction: a HairInteraction or None; strand_contact: a StrandContact or None."""
 
     integrator: Integrator = Integrator.EXPLICIT
@@ -96,6 +98,7 @@ class SolverOptions:
     max_substeps: int = DEFAULT_MAX_SUBSTEPS
     max_speed: float = DEFAULT_MAX_SPEED
     strict: bool = False
+    strand_steps: bool = True
     hair_interaction: HairInteraction | None = None
     strand_contact: StrandContact | None = None
 
@@ -111,6 +114,7 @@ class SolverOptions:
             put("strain", Strain.parse("strain", self.strain))
         put("extensible", _flag("extensible", self.extensible))
         put("strict", _flag("strict", self.strict))
+        put("strand_steps", _flag("strand_steps", self.strand_steps))
         for name in ("projection_iterations", "twist_iterations", "max_substeps"):
             put(name, integer(name, getattr(self, name), low=1))
         if self.projection_tol is not None:

@@ -14,9 +14,12 @@ DriveArgs = ti.types.argpack(
 ContactArgs = ti.types.argpack(kinds=Ints1, geometry=Vec3s2, params=Vec4s1, sdf=Scalars3, sdf_meta=Vec3s1)
 
 
+# h: the step [s]; stride: how many launch steps it spans (1, or a strand's own with
+# StageFlags.strides: advance_strands sets h and stride per strand); k0: the launch's first step
+# index in launch steps (time (k0 + k) h / stride at launch step k)
 StepScalars = ti.types.struct(
     h=float, k0=float, drag=float, max_speed=float, projection_tol=float, projection_iterations=ti.i32,
-    twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float)
+    twist_tol=float, twist_iterations=ti.i32, n_analytic=ti.i32, pin_f0=float, pin_df=float, stride=ti.i32)
 
 
 # The launch's scalars by name (StepScalars' members) as an argpack, which a kernel takes whole
@@ -25,7 +28,7 @@ StepScalars = ti.types.struct(
 # about 40 us to write, typically k0 alone per launch, while building an argpack or a struct
 # in Python costs about 1 ms (Taichi 1.7.4, this 2-core machine under load) and passing 11
 # loose scalars costs about what passing the argpack does.
-ScalarArgs = ti.types.argpack(**StepScalars.members)
+ScalarArgs = ti.types.argpack(**{name: kind for name, kind in StepScalars.members.items() if name != "stride"})
 
 
 @ti.func
@@ -34,7 +37,7 @@ def gather_scalars(sa: ti.template()):
     return StepScalars(h=sa.h, k0=sa.k0, drag=sa.drag, max_speed=sa.max_speed, projection_tol=sa.projection_tol,
                        projection_iterations=sa.projection_iterations, twist_tol=sa.twist_tol,
                        twist_iterations=sa.twist_iterations, n_analytic=sa.n_analytic, pin_f0=sa.pin_f0,
-                       pin_df=sa.pin_df)
+                       pin_df=sa.pin_df, stride=1)
 
 
 class StepBundles:
@@ -124,7 +127,7 @@ class StepBundles:
 
 
 # The launch's scalars in StepScalars' order (ScalarArgs' members; contact.py's slots)
-SCALAR_NAMES = tuple(StepScalars.members)
+SCALAR_NAMES = tuple(name for name in StepScalars.members if name != "stride")
 
 
 def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> tuple:
@@ -138,10 +141,11 @@ def step_scalars(plan: StepPlan, control, h: float, pin_fraction=(0.0, 0.0)) -> 
     return tuple(values[name] for name in SCALAR_NAMES)
 
 
-def launch_flags(plan: StepPlan, control, pins, moving_head: bool = False):
+def launch_flags(plan: StepPlan, control, pins, moving_head: bool = False, strides: bool = False):
     """(flags, pin arrays or None, (f0, df)) of a launch; pins: None, or (pin_mode, pin_start,
-    pin_end, clip, f0, df, clips) as `advance` takes them."""
+    pin_end, clip, f0, df, clips) as `advance` takes them; strides: strands step at their own
+    strides (counters' step_stride), where no pin, clip or touch tool needs every launch step."""
     arrays_, fraction, clips = (None, (0.0, 0.0), False) if pins is None else (pins[:4], pins[4:6], pins[6])
     flags = stage_flags(plan, user=control.user_force is not None, moving_head=moving_head,
-                        pins=pins is not None, clips=clips)
+                        pins=pins is not None, clips=clips, strides=strides and pins is None and not plan.touch)
     return flags, arrays_, fraction

@@ -30,7 +30,7 @@ def read_step_values(params: ti.template()):
                      twist_tol=params[SLOT["twist_tol"]],
                      twist_iterations=ti.cast(params[SLOT["twist_iterations"]], ti.i32),
                      n_analytic=ti.cast(params[SLOT["n_analytic"]], ti.i32), pin_f0=params[SLOT["pin_f0"]],
-                     pin_df=params[SLOT["pin_df"]])
+                     pin_df=params[SLOT["pin_df"]], stride=1)
     return (sc, ti.cast(params[SLOT["self_contact"]], ti.i32), ti.cast(params[SLOT["mask"]], ti.i32),
             params[SLOT["friction"]], params[SLOT["allowed"]], ti.cast(params[SLOT["passes"]], ti.i32),
             ti.cast(params[SLOT["n_steps"]], ti.i32))

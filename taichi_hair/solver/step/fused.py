@@ -7,7 +7,7 @@ import taichi as ti
 from ...rods.arrays import Ints2, Vec3s1, Vec3s2
 from ...rods.spread import spread_factor
 from .bundles import ContactArgs, DriveArgs, gather_scalars, ModelArgs, ScalarArgs, StateArgs
-from .plan import BAD, StageFlags
+from .plan import BAD, STRIDE, StageFlags
 from .stages import STAGE_FUNCS, strand_place_root
 
 
@@ -15,22 +15,28 @@ from .stages import STAGE_FUNCS, strand_place_root
 def advance_strands(n_steps: int, fl: ti.template(), sa: ScalarArgs, md: ModelArgs, st: StateArgs, dr: DriveArgs,
                     co: ContactArgs):
     """n_steps steps of sa.h [s] from step index sa.k0 (time k0 h) for every strand (head poses
-    as in the module doc; tool_points[k] are the tools at the start of step k). counters[s, BAD]
-    = the first step where strand s failed (that strand stops there), -1 if none. One thread
-    per strand."""
+    as in the module doc; tool_points[k] are the tools at the start of step k). With fl.strides
+    strand s steps c = counters[s, STRIDE] of them at a time (c h [s] from every c-th step; c
+    divides n_steps). counters[s, BAD] = the first step where strand s failed (that strand stops
+    there), -1 if none. One thread per strand."""
     sc = gather_scalars(sa)
     factor = spread_factor(st.x.shape[0])
     for t in range(st.x.shape[0] * factor):
         if t % factor == 0:
             s = t // factor
             st.counters[s, BAD] = -1
+            own = sc
+            if ti.static(fl.strides):
+                own.stride = ti.max(1, st.counters[s, STRIDE])
+                own.h = sc.h * own.stride
             for k in range(n_steps):
-                bad = 0
-                for stage in ti.static(STAGE_FUNCS):
-                    bad += stage(s, k, fl, sc, md, st, dr, co)
-                if bad:
-                    st.counters[s, BAD] = k
-                    break
+                if k % own.stride == 0:
+                    bad = 0
+                    for stage in ti.static(STAGE_FUNCS):
+                        bad += stage(s, k, fl, own, md, st, dr, co)
+                    if bad:
+                        st.counters[s, BAD] = k
+                        break
 
 
 def compiled_variants() -> list[dict]:

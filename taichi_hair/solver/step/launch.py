@@ -9,12 +9,13 @@ from .stages import PROJECTION, STAGES
 
 
 def advance(bundles: StepBundles, plan: StepPlan, control, h: float, n_steps: int, moving_head: bool,
-            pins=None) -> None:
+            pins=None, strides: bool = False) -> None:
     """Run n_steps steps of h in one launch; counters[:, BAD] holds each strand's first bad step.
     pins: None, or (pin_mode, pin_start, pin_end, clip, f0, df, clips): after step k pinned
     nodes are min(1, f0 + (k + 1) df) of the way from start to end (see pins.py); clips: a clip
-    holds twist or slides."""
-    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head)
+    holds twist or slides. strides: each strand steps counters[s, step_stride] x h at a time
+    (explicit step, no pins; n_steps a multiple of every stride)."""
+    flags, arrays_, fraction = launch_flags(plan, control, pins, moving_head, strides)
     args = (flags, bundles.scalars(plan, control, h, fraction), bundles.model, bundles.state,
             bundles.drive(arrays_), bundles.contacts)
     if flags.implicit:

@@ -32,6 +32,7 @@ PROJ_IT, PROJ_CAP, PROJ_STALL, TWIST_IT, BAD, TWIST_CAP, TWIST_STALL, TWIST_SWIT
 
 
 PROJ_IT_SUM, PROJ_COUNT = COUNTERS["projection_iterations_sum"], COUNTERS["projections"]
+STRIDE = COUNTERS["step_stride"]
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,8 @@ class StageFlags:
     a clip holds twist or slides (pins.py); implicit: the implicit step (implicit.py) instead of
     symplectic Euler; shake: the projection's constraint forces along the start-of-step edges
     (strand_project); stretch: the edges are compliant constraints with axial stiffness EA
-    (assemble_projection); rotation: the rotation strain measure (rods/rod.py)."""
+    (assemble_projection); rotation: the rotation strain measure (rods/rod.py); strides: each
+    strand steps at its own stride of launch steps (fused.advance_strands)."""
 
     external: bool
     wind_field: bool
@@ -110,6 +112,7 @@ class StageFlags:
     shake: bool = False
     stretch: bool = False
     rotation: bool = False
+    strides: bool = False
 
 
 @functools.lru_cache(maxsize=256)

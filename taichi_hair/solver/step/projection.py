@@ -246,7 +246,7 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     is the nonlinear start of Gauss-Newton and it keeps going). Held nodes (the root, pins) have
     infinite mass (inv_mass 0). Returns (iterations, final residual)."""
     n = md.node_count[s]
-    now, prev = head_poses(k, fl)
+    now, prev = head_poses(k, fl, sc.stride)
     it = 0
     res = 0.0
     previous = 0.0
@@ -260,7 +260,7 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
             restart = first
     if ti.static(fl.contacts):
         # friction's cone holds on the step's totals; the clearances, less the colliders' moves
-        strand_reset_friction(s, st, collider_travel(s, k, fl, md, st, dr))
+        strand_reset_friction(s, st, collider_travel(s, k, sc.stride, fl, md, st, dr))
     while True:
         if ti.static(fl.contacts):
             strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)

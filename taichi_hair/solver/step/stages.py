@@ -23,6 +23,8 @@ def strand_external_forces(s, k, fl: ti.template(), sc, md: ti.template(), st: t
     [m/s]); drag in N s/m per metre of strand; u_air varies in time and space with wind_field;
     grabs at the tools' positions at the start of step k."""
     t = (sc.k0 + k) * sc.h  # from the step's index, not a running sum: the same whatever the launches
+    if ti.static(fl.strides):
+        t = (sc.k0 + k) * (sc.h / sc.stride)  # in launch steps: the strand's step spans sc.stride
     wind = dr.loads[1]
     if ti.static(fl.wind_field):
         wind = gusting_wind(dr.loads[1], dr.gusts, t)
@@ -159,7 +161,7 @@ def stage_integrate(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templ
     the way to their targets."""
     # the implicit step's integration runs in launches of its own (implicit_integrate)
     ti.static_assert(not fl.implicit, "the implicit step integrates in implicit_integrate")
-    now, _ = head_poses(k, fl)
+    now, _ = head_poses(k, fl, sc.stride)
     strand_symplectic_euler(s, sc.h, fl, md, st, dr)
     place_root_and_pins(s, k, now, fl, sc, md, st, dr)
     return 0
@@ -207,7 +209,7 @@ def stage_frames_twist(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.te
     if ti.static(fl.root_mode == ROOT_PINNED or fl.root_mode == ROOT_FREE):
         strand_carry_root_frame(s, st.x, st.root_t, st.root_u)
     if ti.static(fl.clips):
-        now, _ = head_poses(k, fl)
+        now, _ = head_poses(k, fl, sc.stride)
         strand_hold_clip_twist(s, pin_fraction(k, sc), md.node_count, dr.pin_mode, dr.clip, dr.head, now,
                                st.bishop_u, st.bishop_v, st.theta)
     if strand_twist(s, fl, sc, md, st, dr):
