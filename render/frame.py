@@ -89,18 +89,20 @@ def _padded(a: np.ndarray) -> np.ndarray:
 
 
 def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
+    """The hair's strands as drawn (`Hair.subset`: a fraction `lod` of them, widened by
+    1 / lod, large grooms in a spatial order; "order": each uploaded vertex's index in
+    hair.vertices) on the device, with the per-vertex buffers the frame fills, and "args"
+    (a HairArgs)."""
     if hair is None:
         x, w = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         seg, nbr, col, opacity = np.zeros(0, np.int32), np.zeros((0, 2), np.int32), x, 1.0
-        sigma, beta_m = x, w
-    elif lod < 1.0:
-        d = hair.subset(lod)
-        x, w, seg, nbr = d["x"], d["widths"] / np.float32(lod), d["seg"], d["nbr"]
-        col, opacity, sigma, beta_m = d["colour"], hair.opacity, d["sigma"], d["beta_m"]
+        sigma, beta_m, order = x, w, np.zeros(0, np.int64)
     else:
-        x, w, seg, nbr = hair.vertices, hair.vertex_widths, hair.segments, hair.neighbours
-        col, opacity = hair.vertex_colours, hair.opacity
-        sigma, beta_m = hair.vertex_sigma, hair.vertex_beta_m
+        d = hair.subset(lod)
+        x, w, seg, nbr = d["x"], d["widths"], d["seg"], d["nbr"]
+        if lod < 1.0:
+            w = w / np.float32(lod)
+        col, opacity, sigma, beta_m, order = d["colour"], hair.opacity, d["sigma"], d["beta_m"], d["order"]
     nv = max(len(x), 1)
     hd = dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
               seg=upload("hair_seg", _padded(seg), ti.i32),
@@ -114,7 +116,7 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
               rgba=buffer("hair_rgba", vec4f, (nv,), 4),
               mark=buffer("hair_mark", ti.i32, (nv,)))
     hd["args"] = HairArgs(**{f"hair_{name}": array for name, array in hd.items()})
-    hd.update(n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
+    hd.update(n_vertices=len(x), n_segments=len(seg), opacity=float(opacity), order=order)
     return hd
 
 
@@ -335,4 +337,6 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
                          smap.params, 0, hd["mark"], hd["shadow"])
-    return hd["shadow"].to_numpy()[: hd["n_vertices"]]
+    shadow = np.empty(hd["n_vertices"], np.float32)
+    shadow[hd["order"]] = hd["shadow"].to_numpy()[: hd["n_vertices"]]
+    return shadow
