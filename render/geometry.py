@@ -20,7 +20,12 @@ SPATIAL_ORDER_VERTICES = 1_000_000
 def _topology(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Strands of counts (S,) vertices stored one after another -> (the first vertex of each
     segment (E,), each vertex's previous and next vertex on its strand (V, 2), the vertex
-    itself at the ends), int32."""
+    itself at the ends), int32, read-only. The last result is kept: a simulation's frames
+    have the same strands every time, and the renderer then finds the very arrays it
+    uploaded last and does not upload them again."""
+    global _last_topology
+    if _last_topology is not None and np.array_equal(_last_topology[0], counts):
+        return _last_topology[1], _last_topology[2]
     n = int(counts.sum())
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     ends = starts + counts - 1
@@ -30,7 +35,14 @@ def _topology(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     neighbours[starts, 0], neighbours[ends, 1] = starts, ends
     is_last = np.zeros(n, dtype=bool)
     is_last[ends] = True
-    return idx[~is_last], neighbours
+    segments = idx[~is_last]
+    for a in (segments, neighbours):
+        a.flags.writeable = False
+    _last_topology = (np.array(counts), segments, neighbours)
+    return segments, neighbours
+
+
+_last_topology = None   # (counts, segments, neighbours) of `_topology`'s last call
 
 
 def _morton(p: np.ndarray) -> np.ndarray:
