@@ -25,7 +25,7 @@ from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish
 from .runtime import buffer, chunks, ensure_init, upload
 from .bundles import HairArgs, LightSetArgs, MeshArgs, MeshPixelArgs
 from .fibre_lobes import table_args
-from .fibre_vertices import shade_fibre_vertices
+from .fibre_vertices import STRIDE_MAX_BEND, interpolate_skipped, mark_interpolated, shade_fibre_vertices
 from .shading import DirectionalLight, HairShading, Lighting, shade_hair_vertices, shade_mesh, split_lights
 from .shadows import ShadowSettings, build_shadow_map, points_shadow_terms, points_transmittance
 from . import tiles
@@ -47,6 +47,9 @@ class RenderSettings:
     path tracer with max_depth 2). strand_lod in (0, 1]: level of detail for sub-pixel hair:
     render this fraction of the strands (a fixed seeded subset), widened by 1 / strand_lod, with
     their opacity lowered so that a pixel's expected transmittance is unchanged.
+    shading_stride: 1 (shade every hair vertex) or 2 (fibre model: every other vertex along
+    each strand, the colour of the ones between linear in arc length; about half the shading
+    and shadow lookups, for segments a few pixels long or more).
     hair_model: "fibre" (physically based, `render.fibre`, from each Hair's material) or
     "kajiya_kay" (`hair_shading`'s lobes on the hair colours). shadows, hair_shading: see their
     classes."""
@@ -59,6 +62,7 @@ class RenderSettings:
     compositor: str = "tiles"
     multiple_scattering: bool = True
     strand_lod: float = 1.0
+    shading_stride: int = 2
 
     def __post_init__(self):
         if not (int(self.supersample) == self.supersample and 1 <= self.supersample <= 4):
@@ -71,6 +75,8 @@ class RenderSettings:
             raise ValueError(f"hair_shading must be a HairShading, got {type(self.hair_shading).__name__}")
         if not 0.0 < self.strand_lod <= 1.0:
             raise ValueError(f"strand_lod must be in (0, 1], got {self.strand_lod}")
+        if self.shading_stride not in (1, 2):
+            raise ValueError(f"shading_stride must be 1 or 2, got {self.shading_stride}")
         if self.compositor not in ("tiles", "kbuffer"):
             raise ValueError(f"compositor must be 'tiles' or 'kbuffer', got {self.compositor!r}")
         if self.hair_model not in ("fibre", "kajiya_kay"):
@@ -83,18 +89,20 @@ def _padded(a: np.ndarray) -> np.ndarray:
 
 
 def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
+    """The hair's strands as drawn (`Hair.subset`: a fraction `lod` of them, widened by
+    1 / lod, large grooms in a spatial order; "order": each uploaded vertex's index in
+    hair.vertices) on the device, with the per-vertex buffers the frame fills, and "args"
+    (a HairArgs)."""
     if hair is None:
         x, w = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         seg, nbr, col, opacity = np.zeros(0, np.int32), np.zeros((0, 2), np.int32), x, 1.0
-        sigma, beta_m = x, w
-    elif lod < 1.0:
-        d = hair.subset(lod)
-        x, w, seg, nbr = d["x"], d["widths"] / np.float32(lod), d["seg"], d["nbr"]
-        col, opacity, sigma, beta_m = d["colour"], hair.opacity, d["sigma"], d["beta_m"]
+        sigma, beta_m, order = x, w, np.zeros(0, np.int64)
     else:
-        x, w, seg, nbr = hair.vertices, hair.vertex_widths, hair.segments, hair.neighbours
-        col, opacity = hair.vertex_colours, hair.opacity
-        sigma, beta_m = hair.vertex_sigma, hair.vertex_beta_m
+        d = hair.subset(lod)
+        x, w, seg, nbr = d["x"], d["widths"], d["seg"], d["nbr"]
+        if lod < 1.0:
+            w = w / np.float32(lod)
+        col, opacity, sigma, beta_m, order = d["colour"], hair.opacity, d["sigma"], d["beta_m"], d["order"]
     nv = max(len(x), 1)
     hd = dict(x=upload("hair_x", _padded(x), vec3f, 3), width=upload("hair_w", _padded(w), f32),
               seg=upload("hair_seg", _padded(seg), ti.i32),
@@ -108,7 +116,7 @@ def _upload_hair(hair: Hair | None, lod: float = 1.0) -> dict:
               rgba=buffer("hair_rgba", vec4f, (nv,), 4),
               mark=buffer("hair_mark", ti.i32, (nv,)))
     hd["args"] = HairArgs(**{f"hair_{name}": array for name, array in hd.items()})
-    hd.update(n_vertices=len(x), n_segments=len(seg), opacity=float(opacity))
+    hd.update(n_vertices=len(x), n_segments=len(seg), opacity=float(opacity), order=order)
     return hd
 
 
@@ -280,8 +288,16 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
     pixels = MeshPixelArgs(pixel_key=mesh_key, pixel_edge_index=edge_index, pixel_sub_key=sub_key,
                            pixel_base=base)
+    masked = bins is not None and tiles.CULL_HIDDEN
+    strided = settings.shading_stride == 2 and settings.hair_model == "fibre" and hd["n_vertices"] > 0
+    if strided:
+        if not masked:
+            hd["mark"].fill(1)
+        mark_interpolated(hd["n_vertices"], hd["args"], np.float32(np.cos(np.radians(STRIDE_MAX_BEND))))
     _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
-                  masked=bins is not None and tiles.CULL_HIDDEN)
+                  masked=masked or strided)
+    if strided:
+        interpolate_skipped(hd["n_vertices"], hd["args"])
     if settings.strand_lod < 1.0:
         lod_opacity(hd["n_vertices"], hd["width_px"], np.float32(settings.strand_lod), hd["rgba"])
     rgb_s = buffer("rgb_s", vec3f, (height, width), 3)
@@ -321,4 +337,6 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
                          smap.params, 0, hd["mark"], hd["shadow"])
-    return hd["shadow"].to_numpy()[: hd["n_vertices"]]
+    shadow = np.empty(hd["n_vertices"], np.float32)
+    shadow[hd["order"]] = hd["shadow"].to_numpy()[: hd["n_vertices"]]
+    return shadow

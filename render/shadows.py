@@ -246,9 +246,9 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), vie
                         mark: ti.types.ndarray(dtype=ti.i32, ndim=1), row: ti.i32,
                         out: ti.types.ndarray(dtype=vec3f, ndim=2)):
     """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
-    where mark[i] != 0. One thread per point."""
+    where mark[i] > 0. One thread per point."""
     for k in range(n):
-        if masked and mark[k] == 0:
+        if masked and mark[k] <= 0:
             continue
         out[row, k] = shadow_terms(x[k], view, proj, sm, params)
 
@@ -258,10 +258,10 @@ def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), vi
                          proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,
                          mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
                          out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] != 0. One
+    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] > 0. One
     thread per point."""
     for k in range(n):
-        if masked and mark[k] == 0:
+        if masked and mark[k] <= 0:
             continue
         out[k] = transmittance(x[k], view, proj, sm, params)
 
