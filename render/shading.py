@@ -24,7 +24,7 @@ from .colour import srgb_colour, srgb_to_linear
 from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
                      vec2f)
 from .runtime import buffer, ensure_init, upload
-from .shadows import transmittance
+from .shadows import filtered_transmittance
 
 vec8f = ti.types.vector(8, ti.f32)
 
@@ -292,8 +292,8 @@ def mesh_sample(key: ti.i64, p2, mesh: ti.template(), eye: vec3f, to_light: vec3
                 first: ti.i32) -> vec3f:
     """Radiance of face key_prim(key) of the meshes (MeshArgs) seen at screen point p2 [px]:
     position, normal and colour interpolated perspective-correctly; the shadow lookup in the
-    light's map (sview, sproj, sm, sparams as `shadows.transmittance` takes it) offset along
-    the normal by two shadow texels against self-shadow acne."""
+    light's map (sview, sproj, sm, sparams as `shadows.filtered_transmittance` takes it)
+    offset along the normal by two shadow texels against self-shadow acne."""
     screen, faces, x, normal, albedo, material = ti.static(
         mesh.mesh_screen, mesh.mesh_faces, mesh.mesh_x, mesh.mesh_normal, mesh.mesh_albedo,
         mesh.mesh_material)
@@ -305,7 +305,8 @@ def mesh_sample(key: ti.i64, p2, mesh: ti.template(), eye: vec3f, to_light: vec3
     n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
     v = unit(eye - p)
     n_eye = ti.select(n.dot(v) < 0.0, -n, n)
-    shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, sm, sparams)
+    shadow = filtered_transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, sm,
+                                    sparams)
     col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
     return shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
                          material[f][0], material[f][1])
