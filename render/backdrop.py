@@ -16,7 +16,7 @@ import taichi as ti
 from .bundles import MeshPixelArgs, ShadowMapArgs
 from .camera import Camera, f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
-from .raster import EDGE_SAMPLES, empty_key, key_depth
+from .raster import EDGE_SAMPLES, empty_key, sub_pixel_edge
 from .shading import shade_surface
 from .shadows import filtered_transmittance
 
@@ -68,23 +68,11 @@ def background_fraction(pixels: ti.template(), px: ti.i32, py: ti.i32) -> f32:
     """Fraction in [0, 1] of pixel (px, py) that shows the background, as `shade_mesh` weighs
     it: at a mesh edge (sub-pixels disagree) the sub-pixels that hit no mesh, elsewhere 1 where
     no mesh covers the centre and 0 where one does."""
-    mesh_key, edge_index, sub_key = ti.static(pixels.pixel_key, pixels.pixel_edge_index,
-                                              pixels.pixel_sub_key)
-    slot = edge_index[py, px]
-    n_mesh, z_lo, z_hi = 0, f32(3.0e38), f32(0.0)
-    full = EDGE_SAMPLES * EDGE_SAMPLES
-    if slot >= 0:
-        for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
-            k = sub_key[slot, j]
-            if k != empty_key():
-                n_mesh += 1
-                z = key_depth(k)
-                z_lo = ti.min(z_lo, z)
-                z_hi = ti.max(z_hi, z)
-    edge = slot >= 0 and ((n_mesh > 0 and n_mesh < full)
-                          or (n_mesh == full and z_hi > z_lo * f32(1.02)))
+    mesh_key, edge_index = ti.static(pixels.pixel_key, pixels.pixel_edge_index)
+    edge, n_mesh = sub_pixel_edge(pixels, edge_index[py, px])
     result = ti.select(mesh_key[py, px] == empty_key(), f32(1.0), f32(0.0))
-    if edge:
+    if edge == 1:
+        full = EDGE_SAMPLES * EDGE_SAMPLES
         result = ti.cast(full - n_mesh, f32) / f32(full)
     return result
 

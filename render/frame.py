@@ -121,6 +121,7 @@ def _upload_meshes(meshes) -> dict:
               colour=upload("mesh_colour", _padded(m["colour"]), vec3f, 3),
               faces=upload("mesh_faces", _padded(m["faces"]), vec3i, 3),
               material=upload("mesh_material", _padded(m["material"]), vec2f, 2),
+              part=upload("mesh_part", _padded(m["part"]), ti.i32),
               width=upload("mesh_w", np.zeros(nv, np.float32), f32),
               width_px=buffer("mesh_width_px", f32, (nv,)),
               screen=buffer("mesh_screen", vec4f, (nv,), 4),
@@ -293,15 +294,15 @@ def _render(camera, hair, meshes, lights, lighting, background, settings,
     sub_key = buffer("mesh_sub_key", ti.i64, (capacity, EDGE_SAMPLES * EDGE_SAMPLES))
     counter = buffer("mesh_edge_count", ti.i32, (1,))
     counter.fill(0)
-    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key)
+    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key, md["part"])
     raster_edge_samples(md["n_faces"], md["screen"], md["faces"], near, edge_index, sub_key)
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
     # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
-    pixels = MeshPixelArgs(pixel_key=mesh_key, pixel_edge_index=edge_index, pixel_sub_key=sub_key,
-                           pixel_base=base)
+    pixels = MeshPixelArgs(pixel_part=md["part"], pixel_key=mesh_key, pixel_edge_index=edge_index,
+                           pixel_sub_key=sub_key, pixel_base=base)
     _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
                   masked=bins is not None and tiles.CULL_HIDDEN, wall=wall)
     if settings.strand_lod < 1.0:
