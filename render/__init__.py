@@ -5,6 +5,7 @@ whatever arch Taichi was initialised with; if nobody initialised it, the first r
 `render.init()` (CPU). See render/README.md.
 """
 
+from .backdrop import Backdrop
 from .camera import Camera, fit_camera
 from .fibre import HairMaterial
 from .fibre_lobes import fibre_scattering
@@ -17,7 +18,7 @@ from .shadows import ShadowSettings
 from .video import ProgressBar, Turntable, read_png, turntable, write_mp4, write_png
 
 __all__ = [
-    "AmbientLight", "Camera", "DirectionalLight", "Hair", "HairMaterial", "HairShading", "Light",
+    "AmbientLight", "Backdrop", "Camera", "DirectionalLight", "Hair", "HairMaterial", "HairShading", "Light",
     "Lighting", "Mesh", "ProgressBar", "RenderSettings", "ShadowSettings", "Turntable",
     "capsule_mesh", "fibre_scattering", "fit_camera", "hair_shadow", "init", "kajiya_kay",
     "read_png", "render_buffers", "render_frame", "three_point_lights", "turntable", "write_mp4",

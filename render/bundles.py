@@ -83,9 +83,11 @@ TileBinArgs = ti.types.argpack(
 
 # the meshes' pixels (`render.frame`, `raster.mark_mesh_edges`): the nearest face's depth key
 # per pixel (H, W), the slot of each pixel near a mesh edge (-1 elsewhere) (H, W), the depth
-# keys at those pixels' EDGE_SAMPLES^2 sub-pixel centres (slots, EDGE_SAMPLES^2), and the
-# linear radiance `shading.shade_mesh` writes (H, W)
+# keys at those pixels' EDGE_SAMPLES^2 sub-pixel centres (slots, EDGE_SAMPLES^2), the linear
+# radiance `shading.shade_mesh` writes (H, W), and which mesh each face belongs to (F,) (where
+# two meshes meet is an edge too: `raster.sub_pixel_edge`)
 MeshPixelArgs = ti.types.argpack(
+    pixel_part=ti.types.ndarray(dtype=ti.i32, ndim=1),
     pixel_key=ti.types.ndarray(dtype=ti.i64, ndim=2),
     pixel_edge_index=ti.types.ndarray(dtype=ti.i32, ndim=2),
     pixel_sub_key=ti.types.ndarray(dtype=ti.i64, ndim=2),

@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
+from .backdrop import Backdrop, camera_to_world, shade_backdrop
 from .camera import Camera, f32, project_vertices, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .geometry import Hair, Mesh, merge_meshes
@@ -128,6 +129,7 @@ def _upload_meshes(meshes) -> dict:
               colour=upload("mesh_colour", _padded(m["colour"]), vec3f, 3),
               faces=upload("mesh_faces", _padded(m["faces"]), vec3i, 3),
               material=upload("mesh_material", _padded(m["material"]), vec2f, 2),
+              part=upload("mesh_part", _padded(m["part"]), ti.i32),
               width=upload("mesh_w", np.zeros(nv, np.float32), f32),
               width_px=buffer("mesh_width_px", f32, (nv,)),
               screen=buffer("mesh_screen", vec4f, (nv,), 4),
@@ -187,12 +189,13 @@ def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
 
 
 def _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
-                  masked: bool = False):
+                  masked: bool = False, wall: dict | None = None):
     """Per directional light: its shadow maps and the meshes' shading into pixels.pixel_base
     (pixels: the meshes' MeshPixelArgs), adding up (the first pass also writes the ambient
     term and the background), and the hair's shadow terms; then the fibre shading of the hair
     under all lights in one pass (Kajiya-Kay: per light). masked: shade only the hair vertices
-    marked in hd["mark"]."""
+    marked in hd["mark"]. wall: the backdrop's kernel values (`_wall`), lit and shadowed per
+    light in place of the flat background; None: the flat background."""
     passes = directional or [DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), shadows=False)]
     fibre = settings.hair_model == "fibre" and hd["n_vertices"] > 0
     if fibre:
@@ -205,7 +208,13 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
         sm = smap.args()
         # Lambert: radiance = albedo / pi x irradiance x cos
         shade_mesh(pixels, md["args"], eye, light.to_light, irradiance / np.float32(np.pi),
-                   ambient, bg, smap.view, smap.proj, sm, smap.params, int(k == 0))
+                   ambient, bg if wall is None else np.zeros(3, np.float32), smap.view, smap.proj,
+                   sm, smap.params, int(k == 0))
+        if wall is not None:
+            shade_backdrop(pixels, wall["cam_to_world"], wall["proj"], wall["plane"],
+                           wall["albedo"], light.to_light, irradiance / np.float32(np.pi),
+                           ambient if k == 0 else np.zeros(3, np.float32), smap.view, smap.proj,
+                           sm, smap.params)
         if fibre:
             points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, sm, smap.params,
                                 int(masked), hd["mark"], k, terms)
@@ -234,20 +243,34 @@ class _Buffers(NamedTuple):
 
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                    lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
-                   settings: RenderSettings = RenderSettings()) -> dict:
+                   settings: RenderSettings = RenderSettings(),
+                   backdrop: Backdrop | None = None) -> dict:
     """Render one frame and return its buffers at the camera's resolution (H, W):
     "image" (H, W, 3) uint8 sRGB, "rgb" (H, W, 3) float32 linear radiance, "alpha" (H, W)
     float32 hair opacity (0 where no hair, ~ fibre width in pixels summed over a column).
     lights: a list of `DirectionalLight` and `AmbientLight`; or lighting: the older
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
-    [0, 1] behind everything."""
-    b = _render(camera, hair, meshes, lights, lighting, background, settings)
+    [0, 1] behind everything; backdrop: a lit wall (`render.Backdrop`) behind everything in its
+    place, receiving the figure's shadows (None: the flat background)."""
+    b = _render(camera, hair, meshes, lights, lighting, background, settings, backdrop)
     return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
 
 
-def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Buffers:
+def _wall(backdrop: Backdrop | None, camera: Camera, scale: int) -> dict | None:
+    """The backdrop's values for `backdrop.shade_backdrop` at the frame's scale, or None."""
+    if backdrop is None:
+        return None
+    if not isinstance(backdrop, Backdrop):
+        raise ValueError(f"backdrop must be a render.Backdrop or None, got {type(backdrop).__name__}")
+    return dict(cam_to_world=camera_to_world(camera), proj=camera.matrices(scale)[1],
+                plane=backdrop.plane(), albedo=backdrop.albedo())
+
+
+def _render(camera, hair, meshes, lights, lighting, background, settings,
+            backdrop=None) -> _Buffers:
     """Render one frame into device buffers (see `render_buffers`)."""
     _check(camera, hair, meshes, settings)
+    wall = _wall(backdrop, camera, settings.supersample)
     directional, ambient = _lights(lights, lighting)
     bg = srgb_to_linear(srgb_colour("background", background)).astype(np.float32)
     ensure_init()
@@ -279,15 +302,15 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
     sub_key = buffer("mesh_sub_key", ti.i64, (capacity, EDGE_SAMPLES * EDGE_SAMPLES))
     counter = buffer("mesh_edge_count", ti.i32, (1,))
     counter.fill(0)
-    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key)
+    mark_mesh_edges(mesh_key, capacity, counter, edge_index, sub_key, md["part"])
     raster_edge_samples(md["n_faces"], md["screen"], md["faces"], near, edge_index, sub_key)
     project_vertices(hd["n_vertices"], hd["x"], hd["width"], view, proj, hd["screen"],
                      hd["width_px"])
     # tiles: bin the hair first, marking the vertices of the segments some tile shows in front
     # of the meshes; only those are shaded
     bins = bin_hair(hd, near, mesh_key) if tiled and hd["n_vertices"] else None
-    pixels = MeshPixelArgs(pixel_key=mesh_key, pixel_edge_index=edge_index, pixel_sub_key=sub_key,
-                           pixel_base=base)
+    pixels = MeshPixelArgs(pixel_part=md["part"], pixel_key=mesh_key, pixel_edge_index=edge_index,
+                           pixel_sub_key=sub_key, pixel_base=base)
     masked = bins is not None and tiles.CULL_HIDDEN
     strided = settings.shading_stride == 2 and settings.hair_model == "fibre" and hd["n_vertices"] > 0
     if strided:
@@ -295,7 +318,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
             hd["mark"].fill(1)
         mark_interpolated(hd["n_vertices"], hd["args"], np.float32(np.cos(np.radians(STRIDE_MAX_BEND))))
     _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
-                  masked=masked or strided)
+                  masked=masked or strided, wall=wall)
     if strided:
         interpolate_skipped(hd["n_vertices"], hd["args"])
     if settings.strand_lod < 1.0:
@@ -320,10 +343,12 @@ def _render(camera, hair, meshes, lights, lighting, background, settings) -> _Bu
 
 def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
                  lighting: Lighting | None = None, background=(0.82, 0.82, 0.84),
-                 settings: RenderSettings = RenderSettings()) -> np.ndarray:
+                 settings: RenderSettings = RenderSettings(),
+                 backdrop: Backdrop | None = None) -> np.ndarray:
     """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
     (this reads back the image only)."""
-    return unpack_image(_render(camera, hair, meshes, lights, lighting, background, settings).image)
+    return unpack_image(_render(camera, hair, meshes, lights, lighting, background, settings,
+                                backdrop).image)
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),

@@ -321,7 +321,8 @@ class Mesh:
 
 def merge_meshes(meshes) -> dict:
     """Concatenate meshes for the kernels. Returns float32/int32 arrays: x (V, 3) [m],
-    normal (V, 3), colour (V, 3) linear, faces (F, 3), material (F, 2) (specular, shininess)."""
+    normal (V, 3), colour (V, 3) linear, faces (F, 3), material (F, 2) (specular, shininess),
+    part (F,) the index in `meshes` of each face's mesh."""
     meshes = list(meshes)
     for i, m in enumerate(meshes):
         if not isinstance(m, Mesh):
@@ -335,6 +336,7 @@ def merge_meshes(meshes) -> dict:
         faces=cat([m.faces + o for m, o in zip(meshes, offsets)], (0, 3)).astype(np.int32),
         material=cat([np.tile([m.specular, m.shininess], (len(m.faces), 1)) for m in meshes],
                      (0, 2)).astype(np.float32),
+        part=np.repeat(np.arange(len(meshes)), [len(m.faces) for m in meshes]).astype(np.int32),
     )
 
 

@@ -132,11 +132,13 @@ EDGE_SAMPLES = 3
 def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: ti.i32,
                     count: ti.types.ndarray(dtype=ti.i32, ndim=1),
                     edge_index: ti.types.ndarray(dtype=ti.i32, ndim=2),
-                    sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
+                    sub_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
+                    part: ti.types.ndarray(dtype=ti.i32, ndim=1)):
     """edge_index (H, W) = a slot (row of sub_key) for each pixel near a mesh edge: one of its
-    8 neighbours differs in showing a mesh, or in depth by over 2 %; -1 elsewhere (and past
-    `capacity` slots). The slot's EDGE_SAMPLES^2 keys are cleared; count[0]: slots taken
-    (start at 0). One thread per pixel."""
+    8 neighbours differs in showing a mesh, in depth by over 2 %, or in which mesh it shows
+    (part (F,): each face's mesh; where a neck meets a body, depth is continuous but the
+    surfaces cross); -1 elsewhere (and past `capacity` slots). The slot's EDGE_SAMPLES^2 keys
+    are cleared; count[0]: slots taken (start at 0). One thread per pixel."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
     for py, px in mesh_key:
         k = mesh_key[py, px]
@@ -149,6 +151,8 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
                 z1, z2 = key_depth(k), key_depth(k2)
                 if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
                     is_edge = 1
+                elif part[key_prim(k)] != part[key_prim(k2)]:
+                    is_edge = 1
         slot = -1
         if is_edge:
             s = ti.atomic_add(count[0], 1)
@@ -157,6 +161,33 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
                 for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
                     sub_key[s, j] = empty_key()
         edge_index[py, px] = slot
+
+
+@ti.func
+def sub_pixel_edge(pixels: ti.template(), slot: ti.i32):
+    """(edge, n_mesh) of the pixel with edge slot `slot` (-1: none) in pixels (MeshPixelArgs):
+    n_mesh of its EDGE_SAMPLES^2 sub-pixels hit a mesh, and they disagree (edge = 1): mesh and
+    background, a depth step of over 2 % (a silhouette), or two meshes (where they cross)."""
+    sub_key, part = ti.static(pixels.pixel_sub_key, pixels.pixel_part)
+    n_mesh, z_lo, z_hi = 0, f32(3.0e38), f32(0.0)
+    first_part, mixed = -1, 0
+    full = EDGE_SAMPLES * EDGE_SAMPLES
+    if slot >= 0:
+        for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+            k = sub_key[slot, j]
+            if k != empty_key():
+                n_mesh += 1
+                z = key_depth(k)
+                z_lo = ti.min(z_lo, z)
+                z_hi = ti.max(z_hi, z)
+                p = part[key_prim(k)]
+                if first_part < 0:
+                    first_part = p
+                elif p != first_part:
+                    mixed = 1
+    edge = slot >= 0 and ((n_mesh > 0 and n_mesh < full)
+                          or (n_mesh == full and (z_hi > z_lo * f32(1.02) or mixed == 1)))
+    return ti.select(edge, 1, 0), n_mesh
 
 
 @ti.kernel

@@ -21,10 +21,10 @@ import taichi as ti
 from .bundles import HairArgs, MeshArgs, MeshPixelArgs, ShadowMapArgs
 from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
-from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_depth, key_prim, perspective_weights, pixel_centre,
-                     vec2f)
+from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_prim, perspective_weights, pixel_centre,
+                     sub_pixel_edge, vec2f)
 from .runtime import buffer, ensure_init, upload
-from .shadows import transmittance
+from .shadows import filtered_transmittance
 
 vec8f = ti.types.vector(8, ti.f32)
 
@@ -292,8 +292,8 @@ def mesh_sample(key: ti.i64, p2, mesh: ti.template(), eye: vec3f, to_light: vec3
                 first: ti.i32) -> vec3f:
     """Radiance of face key_prim(key) of the meshes (MeshArgs) seen at screen point p2 [px]:
     position, normal and colour interpolated perspective-correctly; the shadow lookup in the
-    light's map (sview, sproj, sm, sparams as `shadows.transmittance` takes it) offset along
-    the normal by two shadow texels against self-shadow acne."""
+    light's map (sview, sproj, sm, sparams as `shadows.filtered_transmittance` takes it)
+    offset along the normal by two shadow texels against self-shadow acne."""
     screen, faces, x, normal, albedo, material = ti.static(
         mesh.mesh_screen, mesh.mesh_faces, mesh.mesh_x, mesh.mesh_normal, mesh.mesh_albedo,
         mesh.mesh_material)
@@ -305,7 +305,8 @@ def mesh_sample(key: ti.i64, p2, mesh: ti.template(), eye: vec3f, to_light: vec3
     n = unit(q[0] * normal[ia] + q[1] * normal[ib] + q[2] * normal[ic])
     v = unit(eye - p)
     n_eye = ti.select(n.dot(v) < 0.0, -n, n)
-    shadow = transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, sm, sparams)
+    shadow = filtered_transmittance(p + n_eye * (f32(2.0) * sparams[3]), sview, sproj, sm,
+                                    sparams)
     col = q[0] * albedo[ia] + q[1] * albedo[ib] + q[2] * albedo[ic]
     return shade_surface(n, to_light, v, col, light, ambient * ti.cast(first, f32), shadow,
                          material[f][0], material[f][1])
@@ -320,30 +321,20 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
     = 0 only this light's direct term is added (one call per light). pixels: the meshes'
     depth keys mesh_key and `base` (H, W), and edge_index, sub_key: the slots of the pixels
     near mesh edges and their depth keys at the EDGE_SAMPLES^2 sub-pixel centres
-    (`raster.mark_mesh_edges`, `raster.raster_edge_samples`).
-    Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, or a
-    depth step of over 2 %: a silhouette) is the mean of its sub-pixels, each shaded on its own
-    face; any other pixel is shaded once at its centre. One thread per pixel."""
+    (`raster.mark_mesh_edges`, `raster.raster_edge_samples`), and each face's mesh (part).
+    Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, a
+    depth step of over 2 %: a silhouette, or two meshes: where they cross;
+    `raster.sub_pixel_edge`) is the mean of its sub-pixels, each shaded on its own face; any
+    other pixel is shaded once at its centre. One thread per pixel."""
     mesh_key, edge_index, sub_key, base = ti.static(pixels.pixel_key, pixels.pixel_edge_index,
                                                     pixels.pixel_sub_key, pixels.pixel_base)
     for py, px in base:
         key = mesh_key[py, px]
         slot = edge_index[py, px]
-        n_mesh, z_lo, z_hi = 0, f32(3.0e38), f32(0.0)
-        full = EDGE_SAMPLES * EDGE_SAMPLES
-        if slot >= 0:
-            for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
-                k = sub_key[slot, j]
-                if k != empty_key():
-                    n_mesh += 1
-                    z = key_depth(k)
-                    z_lo = ti.min(z_lo, z)
-                    z_hi = ti.max(z_hi, z)
-        edge = slot >= 0 and ((n_mesh > 0 and n_mesh < full)
-                              or (n_mesh == full and z_hi > z_lo * f32(1.02)))
+        edge, _ = sub_pixel_edge(pixels, slot)
         c = vec3f(0.0, 0.0, 0.0)
         any_mesh = key != empty_key()
-        if edge:
+        if edge == 1:
             any_mesh = True
             for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
                 k = sub_key[slot, dy * EDGE_SAMPLES + dx]

@@ -240,6 +240,44 @@ def transmittance(p: vec3f, view: mat4f, proj: vec4f, sm: ti.template(), params:
     return ti.exp(-params[1] * t[0]) * t[1]
 
 
+@ti.func
+def tent_weight(f: f32, d: ti.i32) -> f32:
+    """Weight of texel g + d, d in {-1, 0, 1}, of the tent three texels wide around a point a
+    fraction f in [0, 1) into texel g: the mean of the bilinear weights half a texel either way,
+    ((1 - f) / 2, 1 / 2, f / 2)."""
+    return ti.select(d == 0, f32(0.5), ti.select(d < 0, f32(0.5) * (f32(1.0) - f), f32(0.5) * f))
+
+
+@ti.func
+def filtered_transmittance(p: vec3f, view: mat4f, proj: vec4f, sm: ti.template(),
+                           params: vec4f) -> f32:
+    """`transmittance` at world point p [m] filtered wider for surfaces: hair opacity and mesh
+    visibility averaged over the 3 x 3 texels around p with tent weights (`tent_weight`: the
+    mean of the 2 x 2 bilinear lookups half a texel either way on each axis). A surface the
+    light grazes stretches one texel over several pixels; there a 2 x 2 lookup's edge follows
+    the texel grid in visible steps, the tent ramps it over about three texels instead. 1 when
+    shadows are off."""
+    z0, opacity, bounds, mesh_key = ti.static(sm.shadow_z0, sm.shadow_opacity, sm.shadow_bounds,
+                                              sm.shadow_mesh_key)
+    result = f32(1.0)
+    if params[0] > 0.0:
+        s = project(view, proj, p)
+        size = z0.shape[0]
+        gx, gy = ti.floor(s[0]), ti.floor(s[1])
+        fx, fy = s[0] - gx, s[1] - gy
+        i0, j0 = ti.cast(gx, ti.i32), ti.cast(gy, ti.i32)
+        hair, lit = f32(0.0), f32(0.0)
+        for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
+            i = ti.math.clamp(i0 + dx, 0, size - 1)
+            j = ti.math.clamp(j0 + dy, 0, size - 1)
+            w = tent_weight(fx, dx) * tent_weight(fy, dy)
+            hair += w * column_opacity(z0, opacity, bounds, i, j, s[2])
+            if key_depth(mesh_key[j, i]) > s[2] - params[2]:
+                lit += w
+        result = ti.exp(-params[1] * hair) * lit
+    return result
+
+
 @ti.kernel
 def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), view: mat4f,
                         proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,

@@ -39,8 +39,10 @@ class Shot:
     towards the eye, with room for the hair to move `reach` x its longest strand sideways)
     orbiting `orbit_degrees` about the vertical through the target over the shot (a
     turntable), dense strands grown from the guides (0: draw the guides), hair colour (sRGB)
-    and fibre width [m], supersampling, and what `--usd` writes: "guides" (the simulated
-    strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both"."""
+    and fibre width [m], supersampling, what `--usd` writes: "guides" (the simulated
+    strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both", and the
+    backdrop: "wall" (a matte wall WALL_DISTANCE behind the target, facing the camera, that
+    the figure casts its key light shadow on) or "plain" (a flat colour)."""
 
     frames: int = 72
     fps: int = 24
@@ -58,6 +60,7 @@ class Shot:
     hair_width: float = 1.5e-4
     supersample: int = 1
     usd: str = "guides"
+    backdrop: str = "wall"
 
     def __post_init__(self):
         for name in ("frames", "fps", "width", "height", "supersample"):
@@ -69,6 +72,7 @@ class Shot:
             raise ValueError(f"width x height x supersample^2 must be at most {MAX_IMAGE_PIXELS} pixels "
                              f"(8192 x 8192), got {self.width} x {self.height} x {self.supersample}^2")
         choice("usd", self.usd, ("guides", "dense", "both"))
+        choice("backdrop", self.backdrop, ("wall", "plain"))
         integer("dense_strands", self.dense_strands, low=0)
         real("dt", self.dt, "s", low=0.0, low_open=True)
         real("fov_y", self.fov_y, "degrees", low=0.0, low_open=True)
@@ -161,6 +165,28 @@ def scalp_interpolator(scene, simulator, n_dense, seed=0):
 
 
 BACKDROP = (0.32, 0.33, 0.35)  # sRGB: a neutral mid-dark grey, so that fine hair reads against it
+# the wall backdrop: its albedo (sRGB; lit by the three-point lights it reads about as BACKDROP
+# where the key light reaches it) and its distance [m] behind the camera's target, behind the
+# head and shoulders, near enough that the key light's shadow of the figure falls in frame
+WALL = (0.26, 0.265, 0.28)
+WALL_DISTANCE = 0.3
+
+
+def hard_base(vertices, faces) -> dict:
+    """A body mesh (vertices [V, 3] m, faces [F, 3]) as render.Mesh arguments with its flat
+    base (the faces lying in the plane of its lowest vertices) on vertices of its own: smooth
+    normals would average the base with the sides, and the sides' lowest ring, shaded as if
+    it faced half down, would show as a band unlike the surface above it."""
+    v, f = np.asarray(vertices, np.float64), np.asarray(faces)
+    z = v[:, 2]
+    on_base = np.abs(z - z.min()) < 1e-9 * max(1.0, float(np.ptp(z)))
+    base = on_base[f].all(axis=1)
+    used = np.unique(f[base])
+    copy = np.full(len(v), -1)
+    copy[used] = len(v) + np.arange(len(used))
+    f = f.copy()
+    f[base] = copy[f[base]]
+    return dict(vertices=np.vstack([v, v[used]]), faces=f)
 
 
 class FrameWriter:
@@ -178,7 +204,7 @@ class FrameWriter:
         self.capsules = [render.capsule_mesh(p0, p1, r) for p0, p1, r in
                          (model.capsules if model is not None else ())]
         body = head.body if head is not None else None
-        self.body = render.Mesh(vertices=np.asarray(body[0]), faces=body[1]) if body is not None else None
+        self.body = render.Mesh(**hard_base(*body)) if body is not None else None
         self.body_turns = head is not None and head.body_attached == "head"
         self.settings = render.RenderSettings(supersample=shot.supersample)
         self.base = self._fitted(scene) if shot.eye is None else render.Camera(
@@ -217,6 +243,19 @@ class FrameWriter:
         angle = math.radians(self.shot.orbit_degrees * frame / max(self.shot.frames, 1))
         return self.base.orbit(math.degrees(angle)) if angle else self.base
 
+    def wall(self, camera):
+        """The shot's backdrop for `camera`: a vertical wall facing it WALL_DISTANCE behind its
+        target (render.Backdrop), or None for the plain one."""
+        if self.shot.backdrop != "wall":
+            return None
+        view = np.asarray(camera.eye) - np.asarray(camera.target)
+        level = np.array([view[0], view[1], 0.0])
+        # a camera looking straight down or up: the wall faces it
+        normal = level if np.linalg.norm(level) > 1e-3 * np.linalg.norm(view) else view
+        normal = normal / np.linalg.norm(normal)
+        return self.render.Backdrop(point=tuple(np.asarray(camera.target) - WALL_DISTANCE * normal),
+                                    normal=tuple(normal), colour=WALL)
+
     def write(self, path, frame, hair_points, head_pose):
         rotation, translation = head_pose
         meshes = []
@@ -233,7 +272,8 @@ class FrameWriter:
         lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))
         hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
         image = self.render.render_frame(camera, hair=hair, meshes=meshes, lights=lights,
-                                         background=BACKDROP, settings=self.settings)
+                                         background=BACKDROP, settings=self.settings,
+                                         backdrop=self.wall(camera))
         self.render.write_png(path, image)
 
 
