@@ -9,6 +9,7 @@ Public API (see README.md):
     th.Scene(head=..., groom=..., material=..., solver=th.SolverOptions(...), environment=th.Environment(...))
         (or the options' fields flat: th.Scene(groom=..., twist=..., motion=..., wind=...))
     th.Shot(frames=..., fps=..., dt=..., width=..., height=..., dense_strands=...): how a scene script is filmed
+    th.Differentiable(groom, material, dt=..., seconds=...).value_and_grad(th.losses.positions(target, times), wrt=[...])
 """
 
 from . import runtime as _runtime  # first: imports Taichi with its banner off (th.init prints it on stderr)
@@ -32,6 +33,8 @@ from .world.scene import Head, Scene
 from .world.options import Environment, SolverOptions
 from .rods.modes import Integrator, Projection, Root, Strain, Twist
 from .solver.simulator import Simulator
+from .diff.problem import Differentiable
+from .diff import losses
 from .solver.stability import SimulationDiverged
 from .hair.usd import UsdCurves, UsdCurvesWriter, read_usd_curves, write_usd_curves
 
@@ -43,4 +46,4 @@ __all__ = ["init", "Shot", "Groom", "Material", "Simulator", "SimulationDiverged
            "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
            "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",
            "pick_guides", "animate_style", "sag_free", "SagFreeReport", "read_usd_curves",
-           "write_usd_curves", "UsdCurvesWriter", "UsdCurves"]
+           "write_usd_curves", "UsdCurvesWriter", "UsdCurves", "Differentiable", "losses"]

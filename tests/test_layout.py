@@ -53,7 +53,7 @@ def test_importing_the_package_and_its_commands_loads_no_renderer():
     assert done.stdout.strip().splitlines()[-1] == "False"
 
 
-LAYERS = ["rods", "world", "solver", "hair", "app"]  # each imports only from those before it
+LAYERS = ["rods", "world", "solver", "hair", "diff", "app"]  # each imports only from those before it
 
 
 def test_modules_live_in_their_layer():

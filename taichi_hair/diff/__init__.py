@@ -1,0 +1,1 @@
+"""Differentiable hair: reverse-mode gradients of a simulated motion (docs/differentiable.md)."""
