@@ -7,6 +7,7 @@ import numpy as np
 
 from . import bench
 from . import doctor
+from . import inverse
 from . import reports
 from . import run_command
 from . import sweep
@@ -97,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_parser(sub)
     run_command.add_parser(sub)
     sweep.add_parser(sub)
+    inverse.add_parser(sub)
     reports.add_parsers(sub)
     return parser
 
