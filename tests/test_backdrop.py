@@ -93,6 +93,31 @@ def test_shadow_edge_on_a_mesh_stays_straight_when_texels_span_pixels():
     assert np.abs(_edge_wobble(512)).max() < 0.5
 
 
+def test_framing_measure_counts_the_figure_not_the_lit_wall_or_its_shadow():
+    """A sphere (radius 0.08 m, 1 m from the camera) and a hair rising from it to y = 0.15 m,
+    in front of the lit wall that takes their shadow (the light from +y: the shadow falls down
+    the frame): the rows the coverage mask marks span
+    the projection's rows (the hair's tip at y = 0.15 m to the sphere's silhouette, tangent
+    cone half-angle asin(r / d), below the centre) within a pixel and a half; the frame's own
+    pixels read off the top-left one would count the wall's shading and the shadow too."""
+    from render.bench import sphere_mesh
+    from render.contact import subject_fraction
+    wall = Backdrop(point=(0.0, 0.0, -0.2), normal=(0.0, 0.0, 1.0), colour=(0.5, 0.5, 0.5))
+    hair = render.Hair(points=[np.array([[0.0, 0.07, 0.0], [0.0, 0.11, 0.0], [0.0, 0.15, 0.0]])],
+                       colours=(0.3, 0.2, 0.1), widths=2e-3)
+    b = render.render_buffers(TOP, meshes=[sphere_mesh(radius=0.08)], hair=hair, backdrop=wall,
+                              lights=[render.DirectionalLight((-0.3, -1.0, -1.0), (3.0, 3.0, 3.0)),
+                                      render.AmbientLight((0.3, 0.3, 0.3))])
+    f = 0.5 * TOP.height / np.tan(np.radians(0.5 * TOP.fov_y))     # focal length [px]
+    top = 0.5 * TOP.height - f * 0.15                               # the hair's tip
+    bottom = 0.5 * TOP.height + f * np.tan(np.arcsin(0.08 / 1.0))   # the sphere's silhouette
+    mask = np.rint(255.0 * b["coverage"]).astype(np.uint8)
+    assert subject_fraction(b["image"], mask=mask) * TOP.height == pytest.approx(bottom - top, abs=1.5)
+    assert b["coverage"].min() == 0.0 and b["coverage"].max() == pytest.approx(1.0)
+    # the shadow, 0.2 m further down the wall, read as subject from the frame's pixels alone
+    assert subject_fraction(b["image"]) * TOP.height > bottom - top + 10.0
+
+
 # -- the frame writer's side ------------------------------------------------------------------
 
 def test_frame_writer_wall_faces_the_camera_behind_its_target():

@@ -571,6 +571,31 @@ def test_subject_fraction_measures_rows_off_the_backdrop():
     assert abs(subject_fraction(img) - 0.30) < 1e-9
 
 
+def test_contact_sheet_measures_framing_on_the_masks_beside_the_frames(tmp_path):
+    """Frames of a shaded wall (a vertical ramp, every row unlike the top-left pixel) with a
+    20-row figure: with mask_NNNNN.png beside each frame (the runner's `mask_path`) the sheet
+    reads the figure's 20 of 100 rows; without masks, the ramp's rows too (all but the top ones
+    within the tolerance of the top-left pixel)."""
+    from render.contact import contact_sheet, subject_fraction
+    from taichi_hair.app.runner import Shot, mask_path
+    frames = tmp_path / "run" / "frames"
+    image = np.repeat(np.linspace(60, 120, 100).astype(np.uint8)[:, None, None], 3, axis=2)
+    image = np.ascontiguousarray(np.broadcast_to(image, (100, 50, 3)))
+    mask = np.zeros_like(image)
+    image[30:50, 20:30], mask[30:50, 20:30] = (200, 150, 100), 255
+    for k in range(3):
+        render.write_png(frames / f"frame_{k:05d}.png", image)
+    assert contact_sheet([tmp_path / "run"], tmp_path / "a.png")["fractions"][0] > 0.85
+    for k in range(3):
+        render.write_png(mask_path(frames / f"frame_{k:05d}.png"), mask)
+    assert mask_path(frames / "frame_00002.png") == frames / "mask_00002.png"
+    assert contact_sheet([tmp_path / "run"], tmp_path / "b.png")["fractions"] == [pytest.approx(0.2)]
+    with pytest.raises(ValueError, match="mask"):
+        subject_fraction(image, mask=mask[:50])
+    with pytest.raises(ValueError, match="masks"):
+        Shot(masks=1)
+
+
 def test_tight_fit_keeps_every_point_in_frame_and_fills_more():
     """fit_camera(tight=True) on a sphere's points: every point projects inside the frame,
     the sphere spans more of the frame's height than with the box's corners fitted, and the

@@ -42,7 +42,10 @@ class Shot:
     and fibre width [m], supersampling, what `--usd` writes: "guides" (the simulated
     strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both", and the
     backdrop: "wall" (a matte wall WALL_DISTANCE behind the target, facing the camera, that
-    the figure casts its key light shadow on) or "plain" (a flat colour)."""
+    the figure casts its key light shadow on) or "plain" (a flat colour). masks: also write
+    each frame's coverage mask (frames/mask_NNNNN.png, `mask_path`: grey, 255 where the hair
+    and meshes cover a pixel, 0 on the backdrop), which framing measures read
+    (render.contact) since the lit wall and its shadows differ from a flat backdrop too."""
 
     frames: int = 72
     fps: int = 24
@@ -61,6 +64,7 @@ class Shot:
     supersample: int = 1
     usd: str = "guides"
     backdrop: str = "wall"
+    masks: bool = False
 
     def __post_init__(self):
         for name in ("frames", "fps", "width", "height", "supersample"):
@@ -73,6 +77,7 @@ class Shot:
                              f"(8192 x 8192), got {self.width} x {self.height} x {self.supersample}^2")
         choice("usd", self.usd, ("guides", "dense", "both"))
         choice("backdrop", self.backdrop, ("wall", "plain"))
+        choice("masks", self.masks, (False, True))
         integer("dense_strands", self.dense_strands, low=0)
         real("dt", self.dt, "s", low=0.0, low_open=True)
         real("fov_y", self.fov_y, "degrees", low=0.0, low_open=True)
@@ -271,10 +276,21 @@ class FrameWriter:
         view = np.asarray(camera.eye) - np.asarray(camera.target)
         lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))
         hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
-        image = self.render.render_frame(camera, hair=hair, meshes=meshes, lights=lights,
-                                         background=BACKDROP, settings=self.settings,
-                                         backdrop=self.wall(camera))
-        self.render.write_png(path, image)
+        scene = dict(hair=hair, meshes=meshes, lights=lights, background=BACKDROP,
+                     settings=self.settings, backdrop=self.wall(camera))
+        if not self.shot.masks:
+            self.render.write_png(path, self.render.render_frame(camera, **scene))
+            return
+        buffers = self.render.render_buffers(camera, **scene)
+        self.render.write_png(path, buffers["image"])
+        grey = np.rint(255.0 * buffers["coverage"]).astype(np.uint8)
+        self.render.write_png(mask_path(path), np.repeat(grey[..., None], 3, axis=2))
+
+
+def mask_path(frame_png) -> Path:
+    """The coverage mask written beside a frame: frames/frame_NNNNN.png -> frames/mask_NNNNN.png."""
+    frame_png = Path(frame_png)
+    return frame_png.with_name("mask_" + frame_png.name.removeprefix("frame_"))
 
 
 @dataclass
@@ -413,6 +429,9 @@ def add_image_arguments(p) -> None:
 
 
 def shot_overrides(args) -> dict:
-    """The Shot fields the command line sets (--width, --height, --dense)."""
-    return {k: v for k, v in (("width", args.width), ("height", args.height),
-                              ("dense_strands", args.dense)) if v is not None}
+    """The Shot fields the command line sets (--width, --height, --dense, --masks)."""
+    overrides = {k: v for k, v in (("width", args.width), ("height", args.height),
+                                   ("dense_strands", args.dense)) if v is not None}
+    if getattr(args, "masks", False):
+        overrides["masks"] = True
+    return overrides
