@@ -113,6 +113,45 @@ def test_shading_stride_two_keeps_the_picture():
     assert delta_e2000(lab[1], lab[2]).mean() < 0.6
 
 
+def test_shading_stride_takes_its_parity_along_each_strand():
+    """Straight strands of 7 and 2 vertices in turn, one after another in the buffer (the
+    long ones starting at even and odd indices in turn) and end to end in space, in rows (so
+    that no bend tells one strand from the next), of alternating colours: at shading stride 2
+    exactly the interior vertices at odd places along their own strand are interpolated (not
+    a short strand's root, which a walk past a long strand's tip would reach), every strand's
+    ends are shaded, the shaded vertices' colours are those of stride 1 and each interpolated
+    one is its own strand's neighbours' stride-1 colours linear in arc length (a neighbour
+    from the next strand, of the other colour, would be far off)."""
+    counts = [7, 2] * 12
+    spans = {7: np.linspace(0.0, 1.0, 7) ** 1.3 * 0.02, 2: np.array([0.0, 0.008])}  # uneven spacing
+    strands, x0 = [], 0.0
+    for k, n in enumerate(counts):
+        if k % 6 == 0:
+            x0 = -0.08
+        strands.append(np.stack([x0 + spans[n], np.full(n, 0.02 * (k // 6) - 0.03), np.zeros(n)], axis=1))
+        x0 += spans[n][-1] + 0.005
+    colours = [(0.6, 0.35, 0.2) if k % 2 else (0.1, 0.1, 0.12) for k in range(len(counts))]
+    hair = Hair(points=strands, colours=colours, widths=3e-4)
+    cam = Camera(eye=(0.0, 0.0, 0.4), target=(0.0, 0.0, 0.0), fov_y=40.0, width=96, height=72)
+    nv = sum(counts)
+    rgba, mark = {}, None
+    for k in (1, 2):
+        render.render_buffers(cam, hair=hair, settings=RenderSettings(shading_stride=k, compositor="kbuffer"))
+        rgba[k] = render.runtime.buffer("hair_rgba", render.camera.vec4f, (nv,), 4).to_numpy()
+        if k == 2:
+            mark = render.runtime.buffer("hair_mark", ti.i32, (nv,)).to_numpy()
+    place = np.concatenate([np.arange(n) for n in counts])
+    last = np.concatenate([np.arange(n) == n - 1 for n in counts])
+    interpolated = mark < 0
+    np.testing.assert_array_equal(interpolated, (place % 2 == 1) & ~last)
+    np.testing.assert_array_equal(rgba[2][~interpolated], rgba[1][~interpolated])
+    x = hair.vertices
+    i = np.nonzero(interpolated)[0]
+    la, lb = np.linalg.norm(x[i] - x[i - 1], axis=1), np.linalg.norm(x[i + 1] - x[i], axis=1)
+    s = (la / (la + lb))[:, None]
+    np.testing.assert_allclose(rgba[2][i], (1 - s) * rgba[1][i - 1] + s * rgba[1][i + 1], rtol=1e-5)
+
+
 def test_spatial_order_draws_the_same_hair(monkeypatch):
     """Large grooms are drawn with their strands in a spatial order (`Hair.subset`): the
     light reaching each vertex comes back in the Hair's own order, the same to the bit
