@@ -140,7 +140,7 @@ def test_the_bust_base_has_its_own_vertices_so_the_sides_normals_stay_the_sides(
     """The default bust: its lowest side ring's smooth normals point sideways (the surface there
     is within a few degrees of vertical) once the flat base is split off, and the base's
     normals point straight down; sharing the base's vertices tilts the ring's normals down."""
-    from taichi_hair.app.runner import hard_base
+    from taichi_hair.app.figure import hard_base
     from taichi_hair.world.bust import BASE, default_bust
     from render.geometry import vertex_normals
     v, f = default_bust()
@@ -153,6 +153,39 @@ def test_the_bust_base_has_its_own_vertices_so_the_sides_normals_stay_the_sides(
     copies = np.arange(len(v), len(split["vertices"]))
     np.testing.assert_allclose(own[copies, 2], -1.0, atol=1e-9)
     assert len(copies) == len(ring) + 1
+
+
+def test_the_bust_takes_the_neck_capsules_normals_at_their_seam():
+    """The default bust where the neck capsule enters it: the bust's smooth normals there are
+    tilted well away from the capsule's (the neck widens below the capsule: a brightness step
+    when shaded); the drawn normals match the capsule's analytic normal (radial from its axis)
+    within 2 degrees at the seam, turn back to the bust's own over SEAM_BAND, and are the
+    bust's own beyond it."""
+    from render.geometry import vertex_normals
+    from taichi_hair.app.figure import SEAM_BAND, capsule_normals, hard_base, seam_normals
+    from taichi_hair.world.bust import default_bust
+    from taichi_hair.world.headmesh import NECK_CAPSULE
+    drawn = hard_base(*default_bust())
+    v = drawn["vertices"]
+    smooth = vertex_normals(v, drawn["faces"])
+    blended = seam_normals(v, smooth, [NECK_CAPSULE])
+    p0, p1, r = (np.asarray(NECK_CAPSULE[0]), np.asarray(NECK_CAPSULE[1]), NECK_CAPSULE[2])
+    t = np.clip((v - p0) @ (p1 - p0) / ((p1 - p0) @ (p1 - p0)), 0.0, 1.0)
+    radial = v - (p0 + t[:, None] * (p1 - p0))
+    outside = np.linalg.norm(radial, axis=1) - r
+    radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)   # the top disc's centre is on the axis
+    towards, out = capsule_normals(v, NECK_CAPSULE)
+    np.testing.assert_allclose(out, outside, atol=1e-12)
+    np.testing.assert_allclose(towards, radial, atol=1e-12)
+    seam = np.abs(outside) < 1e-3
+    assert seam.sum() >= 48
+    angle = lambda a, b: np.degrees(np.arccos(np.clip((a * b).sum(axis=1), -1.0, 1.0)))
+    assert angle(smooth[seam], radial[seam]).min() > 10.0
+    assert angle(blended[seam], radial[seam]).max() < 2.0
+    far = outside > SEAM_BAND
+    np.testing.assert_allclose(blended[far], smooth[far], atol=1e-12)
+    used = np.unique(drawn["faces"])
+    np.testing.assert_allclose(np.linalg.norm(blended[used], axis=1), 1.0, atol=1e-12)
 
 
 def test_where_two_meshes_cross_the_line_is_antialiased():

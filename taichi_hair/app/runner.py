@@ -17,6 +17,7 @@ import numpy as np
 from ..progress import ProgressBar
 from ..world.scene import Scene
 from ..validation import choice, cli_int, integer, real, vector3
+from .figure import hard_base, seam_normals
 from .outdir import claim_out_dir, naming_file
 from .run_output import (check_usd, checkpoint, frame_path, load_guides, log_frame, open_usd_writer,
                          remove_guides, resume_point, run_summary, write_usd_frame, write_video)
@@ -177,23 +178,6 @@ WALL = (0.26, 0.265, 0.28)
 WALL_DISTANCE = 0.3
 
 
-def hard_base(vertices, faces) -> dict:
-    """A body mesh (vertices [V, 3] m, faces [F, 3]) as render.Mesh arguments with its flat
-    base (the faces lying in the plane of its lowest vertices) on vertices of its own: smooth
-    normals would average the base with the sides, and the sides' lowest ring, shaded as if
-    it faced half down, would show as a band unlike the surface above it."""
-    v, f = np.asarray(vertices, np.float64), np.asarray(faces)
-    z = v[:, 2]
-    on_base = np.abs(z - z.min()) < 1e-9 * max(1.0, float(np.ptp(z)))
-    base = on_base[f].all(axis=1)
-    used = np.unique(f[base])
-    copy = np.full(len(v), -1)
-    copy[used] = len(v) + np.arange(len(used))
-    f = f.copy()
-    f[base] = copy[f[base]]
-    return dict(vertices=np.vstack([v, v[used]]), faces=f)
-
-
 class FrameWriter:
     """Renders one frame of hair (+ the head mesh and its neck capsule, turned with the head, and
     the body: where it is, or turned with the head; Head.body_attached) with `render`,
@@ -209,7 +193,12 @@ class FrameWriter:
         self.capsules = [render.capsule_mesh(p0, p1, r) for p0, p1, r in
                          (model.capsules if model is not None else ())]
         body = head.body if head is not None else None
-        self.body = render.Mesh(**hard_base(*body)) if body is not None else None
+        self.body = None
+        if body is not None:
+            drawn = hard_base(*body)
+            smooth = render.geometry.vertex_normals(drawn["vertices"], drawn["faces"])
+            self.body = render.Mesh(**drawn, normals=seam_normals(drawn["vertices"], smooth,
+                                                                  model.capsules if model is not None else ()))
         self.body_turns = head is not None and head.body_attached == "head"
         self.settings = render.RenderSettings(supersample=shot.supersample)
         self.base = self._fitted(scene) if shot.eye is None else render.Camera(
