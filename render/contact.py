@@ -9,7 +9,10 @@ out/contact_runs) at the given --frames / --width / --height / --dense, then til
 output folder (holding frames/frame_NNNNN.png, as `taichi-hair run` writes, or
 frame_NNNNN.png directly, as `render.turntable` writes); folders without frames are skipped
 with a note. Rows are labelled with the folder's name, the frame numbers and the subject's
-fraction of the frame height (`subject_fraction`, the smallest of the three frames).
+fraction of the frame height (`subject_fraction`, the smallest of the three frames): measured
+on the frame's coverage mask (mask_NNNNN.png beside it, `taichi-hair run --masks`, which --run
+asks for) where there is one, since a lit backdrop's shading and the figure's shadow on it
+differ from its top-left pixel as much as the figure does; else on the frame itself.
 """
 
 import argparse
@@ -39,13 +42,25 @@ def _thumb(image: np.ndarray, width: int) -> np.ndarray:
     return (a + 0.5).astype(np.uint8)
 
 
-def subject_fraction(image: np.ndarray, tolerance: int = 6) -> float:
-    """Fraction of the image's height (H, W, 3) spanned by the rows holding any pixel that
-    differs from the backdrop (the colour of the top-left pixel) by more than `tolerance`
-    8-bit levels in some channel: the subject's height in the frame (0 if none)."""
-    diff = np.abs(image.astype(np.int16) - image[0, 0].astype(np.int16)).max(axis=-1)
-    rows = np.nonzero((diff > tolerance).any(axis=1))[0]
+def subject_fraction(image: np.ndarray, tolerance: int = 6, mask: np.ndarray | None = None) -> float:
+    """Fraction of the image's height (H, W, 3) spanned by the rows holding subject: the
+    subject's height in the frame (0 if none). With `mask` (H, W) or (H, W, 3) uint8, the
+    frame's coverage mask (255 where hair or meshes cover a pixel), the pixels over `tolerance`
+    there; else the pixels that differ from the backdrop (the colour of the top-left pixel) by
+    more than `tolerance` 8-bit levels in some channel (a flat backdrop only)."""
+    if mask is not None:
+        if mask.shape[:2] != image.shape[:2]:
+            raise ValueError(f"mask must be the image's size {image.shape[:2]}, got {mask.shape[:2]}")
+        subject = (mask.reshape(*mask.shape[:2], -1) > tolerance).any(axis=-1)
+    else:
+        subject = np.abs(image.astype(np.int16) - image[0, 0].astype(np.int16)).max(axis=-1) > tolerance
+    rows = np.nonzero(subject.any(axis=1))[0]
     return float(rows[-1] - rows[0] + 1) / image.shape[0] if len(rows) else 0.0
+
+
+def _mask(frame: Path, shape) -> np.ndarray | None:
+    """The coverage mask beside `frame` (frame_NNNNN.png -> mask_NNNNN.png), or None."""
+    return read_png(frame.with_name("mask_" + frame.name.removeprefix("frame_")), shape)
 
 
 def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
@@ -59,7 +74,8 @@ def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
             continue
         picks = sorted({0, len(frames) // 2, len(frames) - 1})
         images = [read_png(frames[k]) for k in picks]
-        fraction = min(subject_fraction(im) for im in images)
+        fraction = min(subject_fraction(im, mask=_mask(frames[k], im.shape[:2]))
+                       for k, im in zip(picks, images))
         thumbs = [_thumb(im, thumb) for im in images]
         h = max(t.shape[0] for t in thumbs)
         cells = [np.pad(t, ((0, h - t.shape[0]), (0, thumb - t.shape[1] + 4), (0, 0)),
@@ -89,7 +105,7 @@ def run_scenes(scripts, runs_dir, frames: int, width: int, height: int, dense: i
     for script in map(Path, scripts):
         out = Path(runs_dir) / script.stem
         cmd = [sys.executable, "-m", "taichi_hair", "run", str(script), "--out", str(out),
-               "--frames", str(frames), "--width", str(width), "--height", str(height)]
+               "--frames", str(frames), "--width", str(width), "--height", str(height), "--masks"]
         if dense is not None:
             cmd += ["--dense", str(dense)]
         print(" ".join(cmd[2:]), flush=True)

@@ -82,21 +82,28 @@ def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: Li
 @ti.kernel
 def mark_interpolated(n: ti.i32, hair: HairArgs, min_cos: f32):
     """Shading stride 2: mark[i] = -1 (colour interpolated from its strand neighbours, not
-    shaded) for every strand-interior vertex i at an odd index that is to be drawn
-    (mark[i] > 0) and where the strand turns little (the cosine between its two segments >=
-    min_cos), and mark its neighbours i - 1 and i + 1 (even, or strand ends) for shading.
-    Shaded colour is interpolated along each segment when compositing anyway: this makes it
-    linear over two segments instead of one. Segments are as long as a few pixels or more at
-    the strand densities where shading costs (~9 px at 640x480, 11 px at 1280x720 in the
-    benchmark), so a colour linear over two of them stays smooth. One thread per vertex:
-    only odd vertices write, and only the value 1 into even ones."""
+    shaded) for every strand-interior vertex i at an odd place along its own strand (counted
+    from the root, so every strand is strided alike wherever it starts in the buffer, and its
+    ends are never interpolated) that is to be drawn (mark[i] > 0) and where the strand turns
+    little (the cosine between its two segments >= min_cos), and mark its neighbours i - 1
+    and i + 1 (even places, or strand ends) for shading. Shaded colour is interpolated along
+    each segment when compositing anyway: this makes it linear over two segments instead of
+    one. Segments are as long as a few pixels or more at the strand densities where shading
+    costs (~9 px at 640x480, 11 px at 1280x720 in the benchmark), so a colour linear over two
+    of them stays smooth. One thread per strand, started at its root (nbr[i][0] == i): the
+    strand's vertices are written by it alone."""
     x, nbr, mark = ti.static(hair.hair_x, hair.hair_nbr, hair.hair_mark)
-    for i in range(n):
-        if i % 2 == 1 and mark[i] > 0 and nbr[i][0] == i - 1 and nbr[i][1] == i + 1:
-            if unit(x[i] - x[i - 1]).dot(unit(x[i + 1] - x[i])) >= min_cos:
-                mark[i] = -1
-                mark[i - 1] = 1
-                mark[i + 1] = 1
+    for root in range(n):
+        if nbr[root][0] == root:
+            i = root + 1
+            # this strand's interior vertices only: its last vertex is its own next neighbour,
+            # the vertex after it (stepping by two from the one before) the next strand's root
+            while i < n and nbr[i][0] == i - 1 and nbr[i][1] == i + 1:
+                if mark[i] > 0 and unit(x[i] - x[i - 1]).dot(unit(x[i + 1] - x[i])) >= min_cos:
+                    mark[i] = -1
+                    mark[i - 1] = 1
+                    mark[i + 1] = 1
+                i += 2
 
 
 @ti.kernel

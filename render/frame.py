@@ -34,6 +34,7 @@ from .tiles import bin_hair, composite_binned
 
 vec2f = ti.types.vector(2, ti.f32)
 vec2i = ti.types.vector(2, ti.i32)
+EMPTY_KEY = 0x7F800000 << 32  # raster.empty_key() read back: a sample no mesh covers
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -239,6 +240,7 @@ class _Buffers(NamedTuple):
     image: object
     rgb: object
     alpha: object
+    mesh_key: object  # (H s, W s) the nearest mesh fragment per sample (raster.empty_key: none)
 
 
 def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,
@@ -247,13 +249,23 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
                    backdrop: Backdrop | None = None) -> dict:
     """Render one frame and return its buffers at the camera's resolution (H, W):
     "image" (H, W, 3) uint8 sRGB, "rgb" (H, W, 3) float32 linear radiance, "alpha" (H, W)
-    float32 hair opacity (0 where no hair, ~ fibre width in pixels summed over a column).
+    float32 hair opacity (0 where no hair, ~ fibre width in pixels summed over a column),
+    "coverage" (H, W) float32 in [0, 1]: how much of each pixel the figure (hair and meshes)
+    covers, 0 on the background or backdrop (a measure of framing that the backdrop's
+    shading and the shadows on it do not enter).
     lights: a list of `DirectionalLight` and `AmbientLight`; or lighting: the older
     `Lighting` (key + ambient; the default when neither is given). background: sRGB colour in
     [0, 1] behind everything; backdrop: a lit wall (`render.Backdrop`) behind everything in its
     place, receiving the figure's shadows (None: the flat background)."""
     b = _render(camera, hair, meshes, lights, lighting, background, settings, backdrop)
-    return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": b.alpha.to_numpy()}
+    alpha = b.alpha.to_numpy()
+    s = settings.supersample
+    on_mesh = (b.mesh_key.to_numpy() != EMPTY_KEY).reshape(camera.height, s, camera.width, s)
+    mesh = on_mesh.mean(axis=(1, 3), dtype=np.float32)
+    # hair over meshes: a pixel is uncovered where both the meshes and the hair let it through
+    coverage = 1.0 - (1.0 - mesh) * (1.0 - np.clip(alpha, 0.0, 1.0))
+    return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": alpha,
+            "coverage": coverage.astype(np.float32)}
 
 
 def _wall(backdrop: Backdrop | None, camera: Camera, scale: int) -> dict | None:
@@ -338,7 +350,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings,
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u32, (camera.height, camera.width))
     finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
-    return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha)
+    return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha, mesh_key=mesh_key)
 
 
 def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=None,

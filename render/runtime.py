@@ -9,6 +9,7 @@ compile once per process, whereas kernels taking fields as templates recompile f
 field.
 """
 
+import os
 import weakref
 
 import numpy as np
@@ -37,6 +38,9 @@ def init(arch: str = "cpu", **kwargs) -> None:
         return
     options = dict(arch=_ARCHES[arch], default_fp=ti.f32, log_level=ti.WARN)
     options.update(kwargs)
+    # no version check thread (unless asked for): a Python thread that loads modules while the
+    # main thread loads pxr can deadlock the two (taichi_hair.runtime.skip_version_check)
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     ti.init(**options)
 
 

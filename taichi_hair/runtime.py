@@ -58,6 +58,16 @@ def taichi_is_initialized() -> bool:
     return ti.lang.impl.get_runtime().prog is not None
 
 
+def skip_version_check() -> None:
+    """Ask `ti.init` not to start its version check (TI_SKIP_VERSION_CHECK=ON, unless the
+    environment says otherwise). The check is a Python thread that posts to Taichi's server
+    while the scene starts; a run that then imports pxr (a USD groom) could hang for good: pxr's
+    libraries take the GIL in their initialisers, inside dlopen, while that thread, holding the
+    GIL, waits to load a module of its own (its host name's codec) behind dlopen's lock. Offline,
+    the check fails without recording the day, so it ran at every start."""
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+
+
 def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, **kwargs) -> None:
     """Initialise Taichi once for this process.
 
@@ -90,6 +100,7 @@ def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, 
         options["fast_math"] = False
     options.update(kwargs)
     print_banner()
+    skip_version_check()
     with contextlib.redirect_stdout(sys.stderr):  # "[Taichi] Starting on arch=...": not data
         ti.init(**options)
     _state["arch"], _state["precision"] = arch, precision

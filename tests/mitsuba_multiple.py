@@ -12,7 +12,7 @@ bounces), CIEDE2000 between the mean hair colours, their hue difference [deg], t
 single-scattering ratio, and each renderer's multiple-scattering gain (all bounces / single
 scattering, mean luminance). Mitsuba's images are cached in --out keyed by every parameter
 (delete the folder to regenerate them); --images writes one sheet of side-by-side images
-(`write_sheet`: ours | Mitsuba, a row per material, a column per light).
+(`write_sheet`: ours | Mitsuba, a row per material, a column per light, labelled).
 """
 
 import argparse
@@ -138,16 +138,18 @@ def compare(materials=None, lights=None, spp: int = 32, cache="out/mitsuba_multi
 def write_sheet(path: Path, cells: dict, materials, lights) -> None:
     """One PNG at path: a row per material, a column per light, each cell ours (left) beside
     Mitsuba's (right) at half resolution (2 x 2 box means), sRGB, one exposure per cell (the
-    brighter image's 99th percentile of hair radiance maps to 1). cells[(material, light)]:
-    (ours, Mitsuba's) render dicts."""
+    brighter image's 99th percentile of hair radiance maps to 1); labelled: the light over
+    each column, "ours" and "Mitsuba" over its two images, the material left of each row.
+    cells[(material, light)]: (ours, Mitsuba's) render dicts."""
     from mitsuba_check import encode_srgb
+    from render.plot import GLYPH_H, draw_text, text_width
     from render.video import write_png
 
     def half(rgb):
         h, w = rgb.shape[0] // 2 * 2, rgb.shape[1] // 2 * 2
         return rgb[:h, :w].reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3))
 
-    rows = []
+    rows, widths = [], None
     for m in materials:
         row = []
         for name in lights:
@@ -156,10 +158,33 @@ def write_sheet(path: Path, cells: dict, materials, lights) -> None:
             scale = max(np.percentile(ours["rgb"][hair], 99), np.percentile(theirs["rgb"][hair], 99), 1e-6)
             a, b = half(ours["rgb"]) / scale, half(theirs["rgb"]) / scale
             row += [a, np.zeros((a.shape[0], 2, 3)), b, np.full((a.shape[0], 6, 3), 0.25)]
+            widths = (a.shape[1], 2, b.shape[1], 6)
         rows += [np.concatenate(row[:-1], axis=1)]
         rows += [np.full((4, rows[-1].shape[1], 3), 0.25)]
+    images = encode_srgb(np.concatenate(rows[:-1], axis=0))
+    # labels in black on white: two header lines (the light at text scale 2, ours / Mitsuba at
+    # 1) and a column of material names (a word a line, scale 2), left of the rows
+    big, line = 2, (GLYPH_H + 3) * 2
+    left = max(text_width(word, big) for m in materials for word in m.split()) + 8
+    header = np.full((line + GLYPH_H + 6, left + images.shape[1], 3), 255, np.uint8)
+    x = left
+    for name in lights:
+        a_w, gap, b_w, sep = widths
+        pair = a_w + gap + b_w
+        draw_text(header, x + (pair - text_width(f"{name} light", big)) // 2, 3, f"{name} light", scale=big)
+        for label, x0, w in (("ours", x, a_w), ("Mitsuba", x + a_w + gap, b_w)):
+            draw_text(header, x0 + (w - text_width(label, 1)) // 2, line + 2, label, scale=1)
+        x += pair + sep
+    body = np.full((images.shape[0], left + images.shape[1], 3), 255, np.uint8)
+    body[:, left:] = images
+    cell_h = (images.shape[0] + 4) // len(materials)
+    for k, m in enumerate(materials):
+        words = m.split()
+        top = k * cell_h + (cell_h - 4 - len(words) * line) // 2
+        for j, word in enumerate(words):
+            draw_text(body, 4, top + j * line + 3, word, scale=big)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_png(path, encode_srgb(np.concatenate(rows[:-1], axis=0)))
+    write_png(path, np.concatenate([header, body], axis=0))
 
 
 def format_table(rows) -> str:

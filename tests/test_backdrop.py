@@ -93,6 +93,31 @@ def test_shadow_edge_on_a_mesh_stays_straight_when_texels_span_pixels():
     assert np.abs(_edge_wobble(512)).max() < 0.5
 
 
+def test_framing_measure_counts_the_figure_not_the_lit_wall_or_its_shadow():
+    """A sphere (radius 0.08 m, 1 m from the camera) and a hair rising from it to y = 0.15 m,
+    in front of the lit wall that takes their shadow (the light from +y: the shadow falls down
+    the frame): the rows the coverage mask marks span
+    the projection's rows (the hair's tip at y = 0.15 m to the sphere's silhouette, tangent
+    cone half-angle asin(r / d), below the centre) within a pixel and a half; the frame's own
+    pixels read off the top-left one would count the wall's shading and the shadow too."""
+    from render.bench import sphere_mesh
+    from render.contact import subject_fraction
+    wall = Backdrop(point=(0.0, 0.0, -0.2), normal=(0.0, 0.0, 1.0), colour=(0.5, 0.5, 0.5))
+    hair = render.Hair(points=[np.array([[0.0, 0.07, 0.0], [0.0, 0.11, 0.0], [0.0, 0.15, 0.0]])],
+                       colours=(0.3, 0.2, 0.1), widths=2e-3)
+    b = render.render_buffers(TOP, meshes=[sphere_mesh(radius=0.08)], hair=hair, backdrop=wall,
+                              lights=[render.DirectionalLight((-0.3, -1.0, -1.0), (3.0, 3.0, 3.0)),
+                                      render.AmbientLight((0.3, 0.3, 0.3))])
+    f = 0.5 * TOP.height / np.tan(np.radians(0.5 * TOP.fov_y))     # focal length [px]
+    top = 0.5 * TOP.height - f * 0.15                               # the hair's tip
+    bottom = 0.5 * TOP.height + f * np.tan(np.arcsin(0.08 / 1.0))   # the sphere's silhouette
+    mask = np.rint(255.0 * b["coverage"]).astype(np.uint8)
+    assert subject_fraction(b["image"], mask=mask) * TOP.height == pytest.approx(bottom - top, abs=1.5)
+    assert b["coverage"].min() == 0.0 and b["coverage"].max() == pytest.approx(1.0)
+    # the shadow, 0.2 m further down the wall, read as subject from the frame's pixels alone
+    assert subject_fraction(b["image"]) * TOP.height > bottom - top + 10.0
+
+
 # -- the frame writer's side ------------------------------------------------------------------
 
 def test_frame_writer_wall_faces_the_camera_behind_its_target():
@@ -115,7 +140,7 @@ def test_the_bust_base_has_its_own_vertices_so_the_sides_normals_stay_the_sides(
     """The default bust: its lowest side ring's smooth normals point sideways (the surface there
     is within a few degrees of vertical) once the flat base is split off, and the base's
     normals point straight down; sharing the base's vertices tilts the ring's normals down."""
-    from taichi_hair.app.runner import hard_base
+    from taichi_hair.app.figure import hard_base
     from taichi_hair.world.bust import BASE, default_bust
     from render.geometry import vertex_normals
     v, f = default_bust()
@@ -128,6 +153,39 @@ def test_the_bust_base_has_its_own_vertices_so_the_sides_normals_stay_the_sides(
     copies = np.arange(len(v), len(split["vertices"]))
     np.testing.assert_allclose(own[copies, 2], -1.0, atol=1e-9)
     assert len(copies) == len(ring) + 1
+
+
+def test_the_bust_takes_the_neck_capsules_normals_at_their_seam():
+    """The default bust where the neck capsule enters it: the bust's smooth normals there are
+    tilted well away from the capsule's (the neck widens below the capsule: a brightness step
+    when shaded); the drawn normals match the capsule's analytic normal (radial from its axis)
+    within 2 degrees at the seam, turn back to the bust's own over SEAM_BAND, and are the
+    bust's own beyond it."""
+    from render.geometry import vertex_normals
+    from taichi_hair.app.figure import SEAM_BAND, capsule_normals, hard_base, seam_normals
+    from taichi_hair.world.bust import default_bust
+    from taichi_hair.world.headmesh import NECK_CAPSULE
+    drawn = hard_base(*default_bust())
+    v = drawn["vertices"]
+    smooth = vertex_normals(v, drawn["faces"])
+    blended = seam_normals(v, smooth, [NECK_CAPSULE])
+    p0, p1, r = (np.asarray(NECK_CAPSULE[0]), np.asarray(NECK_CAPSULE[1]), NECK_CAPSULE[2])
+    t = np.clip((v - p0) @ (p1 - p0) / ((p1 - p0) @ (p1 - p0)), 0.0, 1.0)
+    radial = v - (p0 + t[:, None] * (p1 - p0))
+    outside = np.linalg.norm(radial, axis=1) - r
+    radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)   # the top disc's centre is on the axis
+    towards, out = capsule_normals(v, NECK_CAPSULE)
+    np.testing.assert_allclose(out, outside, atol=1e-12)
+    np.testing.assert_allclose(towards, radial, atol=1e-12)
+    seam = np.abs(outside) < 1e-3
+    assert seam.sum() >= 48
+    angle = lambda a, b: np.degrees(np.arccos(np.clip((a * b).sum(axis=1), -1.0, 1.0)))
+    assert angle(smooth[seam], radial[seam]).min() > 10.0
+    assert angle(blended[seam], radial[seam]).max() < 2.0
+    far = outside > SEAM_BAND
+    np.testing.assert_allclose(blended[far], smooth[far], atol=1e-12)
+    used = np.unique(drawn["faces"])
+    np.testing.assert_allclose(np.linalg.norm(blended[used], axis=1), 1.0, atol=1e-12)
 
 
 def test_where_two_meshes_cross_the_line_is_antialiased():

@@ -141,3 +141,24 @@ def test_library_keeps_stdout_for_the_caller():
     assert done.returncode == 0, done.stderr[-2000:]
     # the banner went to stderr without Taichi mistaking a replaced stdout for a notebook's
     assert done.stdout == "data False\n" and "[Taichi] version" in done.stderr
+
+
+@pytest.mark.parametrize("package", ["taichi_hair", "render"])
+def test_init_starts_no_python_thread(package):
+    """Starting Taichi leaves no Python thread running beside the main one (Taichi's version
+    check would be one: a thread loading modules while the main thread loads pxr can deadlock
+    with it, `runtime.skip_version_check`); TI_SKIP_VERSION_CHECK set by the user stands."""
+    script = ("import os, threading\n"
+              "os.environ.pop('TI_SKIP_VERSION_CHECK', None)\n"
+              f"import {package} as p\n"
+              "started, start = [], threading.Thread.start\n"
+              "threading.Thread.start = lambda t: (started.append(t.name), start(t))[1]\n"
+              "p.init()\n"
+              "print(started, os.environ.get('TI_SKIP_VERSION_CHECK'))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.splitlines()[-1] == "[] ON"   # (render.init's banner goes to stdout)
+    kept = subprocess.run([sys.executable, "-c", script.replace("os.environ.pop('TI_SKIP_VERSION_CHECK', None)",
+                                                                "os.environ['TI_SKIP_VERSION_CHECK'] = 'OFF'")],
+                          capture_output=True, text=True, timeout=300)
+    assert kept.stdout.endswith(" OFF\n"), kept.stderr[-2000:]

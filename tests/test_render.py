@@ -113,6 +113,45 @@ def test_shading_stride_two_keeps_the_picture():
     assert delta_e2000(lab[1], lab[2]).mean() < 0.6
 
 
+def test_shading_stride_takes_its_parity_along_each_strand():
+    """Straight strands of 7 and 2 vertices in turn, one after another in the buffer (the
+    long ones starting at even and odd indices in turn) and end to end in space, in rows (so
+    that no bend tells one strand from the next), of alternating colours: at shading stride 2
+    exactly the interior vertices at odd places along their own strand are interpolated (not
+    a short strand's root, which a walk past a long strand's tip would reach), every strand's
+    ends are shaded, the shaded vertices' colours are those of stride 1 and each interpolated
+    one is its own strand's neighbours' stride-1 colours linear in arc length (a neighbour
+    from the next strand, of the other colour, would be far off)."""
+    counts = [7, 2] * 12
+    spans = {7: np.linspace(0.0, 1.0, 7) ** 1.3 * 0.02, 2: np.array([0.0, 0.008])}  # uneven spacing
+    strands, x0 = [], 0.0
+    for k, n in enumerate(counts):
+        if k % 6 == 0:
+            x0 = -0.08
+        strands.append(np.stack([x0 + spans[n], np.full(n, 0.02 * (k // 6) - 0.03), np.zeros(n)], axis=1))
+        x0 += spans[n][-1] + 0.005
+    colours = [(0.6, 0.35, 0.2) if k % 2 else (0.1, 0.1, 0.12) for k in range(len(counts))]
+    hair = Hair(points=strands, colours=colours, widths=3e-4)
+    cam = Camera(eye=(0.0, 0.0, 0.4), target=(0.0, 0.0, 0.0), fov_y=40.0, width=96, height=72)
+    nv = sum(counts)
+    rgba, mark = {}, None
+    for k in (1, 2):
+        render.render_buffers(cam, hair=hair, settings=RenderSettings(shading_stride=k, compositor="kbuffer"))
+        rgba[k] = render.runtime.buffer("hair_rgba", render.camera.vec4f, (nv,), 4).to_numpy()
+        if k == 2:
+            mark = render.runtime.buffer("hair_mark", ti.i32, (nv,)).to_numpy()
+    place = np.concatenate([np.arange(n) for n in counts])
+    last = np.concatenate([np.arange(n) == n - 1 for n in counts])
+    interpolated = mark < 0
+    np.testing.assert_array_equal(interpolated, (place % 2 == 1) & ~last)
+    np.testing.assert_array_equal(rgba[2][~interpolated], rgba[1][~interpolated])
+    x = hair.vertices
+    i = np.nonzero(interpolated)[0]
+    la, lb = np.linalg.norm(x[i] - x[i - 1], axis=1), np.linalg.norm(x[i + 1] - x[i], axis=1)
+    s = (la / (la + lb))[:, None]
+    np.testing.assert_allclose(rgba[2][i], (1 - s) * rgba[1][i - 1] + s * rgba[1][i + 1], rtol=1e-5)
+
+
 def test_spatial_order_draws_the_same_hair(monkeypatch):
     """Large grooms are drawn with their strands in a spatial order (`Hair.subset`): the
     light reaching each vertex comes back in the Hair's own order, the same to the bit
@@ -569,6 +608,31 @@ def test_subject_fraction_measures_rows_off_the_backdrop():
     assert subject_fraction(img) == 0.0
     img[40:70, 10:20] = (150, 110, 60)
     assert abs(subject_fraction(img) - 0.30) < 1e-9
+
+
+def test_contact_sheet_measures_framing_on_the_masks_beside_the_frames(tmp_path):
+    """Frames of a shaded wall (a vertical ramp, every row unlike the top-left pixel) with a
+    20-row figure: with mask_NNNNN.png beside each frame (the runner's `mask_path`) the sheet
+    reads the figure's 20 of 100 rows; without masks, the ramp's rows too (all but the top ones
+    within the tolerance of the top-left pixel)."""
+    from render.contact import contact_sheet, subject_fraction
+    from taichi_hair.app.runner import Shot, mask_path
+    frames = tmp_path / "run" / "frames"
+    image = np.repeat(np.linspace(60, 120, 100).astype(np.uint8)[:, None, None], 3, axis=2)
+    image = np.ascontiguousarray(np.broadcast_to(image, (100, 50, 3)))
+    mask = np.zeros_like(image)
+    image[30:50, 20:30], mask[30:50, 20:30] = (200, 150, 100), 255
+    for k in range(3):
+        render.write_png(frames / f"frame_{k:05d}.png", image)
+    assert contact_sheet([tmp_path / "run"], tmp_path / "a.png")["fractions"][0] > 0.85
+    for k in range(3):
+        render.write_png(mask_path(frames / f"frame_{k:05d}.png"), mask)
+    assert mask_path(frames / "frame_00002.png") == frames / "mask_00002.png"
+    assert contact_sheet([tmp_path / "run"], tmp_path / "b.png")["fractions"] == [pytest.approx(0.2)]
+    with pytest.raises(ValueError, match="mask"):
+        subject_fraction(image, mask=mask[:50])
+    with pytest.raises(ValueError, match="masks"):
+        Shot(masks=1)
 
 
 def test_tight_fit_keeps_every_point_in_frame_and_fills_more():

@@ -29,6 +29,9 @@ def add_parser(sub):
     p.add_argument("--strain", default=None, choices=[c for c in STRAIN_CHOICES if c],
                    help="override the scene's strain measure (der: the DER measure, to compare; docs/model.md; "
                         "default: the scene's)")
+    p.add_argument("--masks", action="store_true",
+                   help="also write frames/mask_NNNNN.png, each frame's hair and meshes as white on black "
+                        "(what `python -m render.contact` measures the framing with)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar: one line per frame on stderr (frame, simulated time, sim / "
                         "interpolation / render ms)")

@@ -17,6 +17,7 @@ import numpy as np
 from ..progress import ProgressBar
 from ..world.scene import Scene
 from ..validation import choice, cli_int, integer, real, vector3
+from .figure import hard_base, seam_normals
 from .outdir import claim_out_dir, naming_file
 from .run_output import (check_usd, checkpoint, frame_path, load_guides, log_frame, open_usd_writer,
                          remove_guides, resume_point, run_summary, write_usd_frame, write_video)
@@ -42,7 +43,10 @@ class Shot:
     and fibre width [m], supersampling, what `--usd` writes: "guides" (the simulated
     strands, /Hair/Guides), "dense" (the rendered strands, /Hair/Dense) or "both", and the
     backdrop: "wall" (a matte wall WALL_DISTANCE behind the target, facing the camera, that
-    the figure casts its key light shadow on) or "plain" (a flat colour)."""
+    the figure casts its key light shadow on) or "plain" (a flat colour). masks: also write
+    each frame's coverage mask (frames/mask_NNNNN.png, `mask_path`: grey, 255 where the hair
+    and meshes cover a pixel, 0 on the backdrop), which framing measures read
+    (render.contact) since the lit wall and its shadows differ from a flat backdrop too."""
 
     frames: int = 72
     fps: int = 24
@@ -61,6 +65,7 @@ class Shot:
     supersample: int = 1
     usd: str = "guides"
     backdrop: str = "wall"
+    masks: bool = False
 
     def __post_init__(self):
         for name in ("frames", "fps", "width", "height", "supersample"):
@@ -73,6 +78,7 @@ class Shot:
                              f"(8192 x 8192), got {self.width} x {self.height} x {self.supersample}^2")
         choice("usd", self.usd, ("guides", "dense", "both"))
         choice("backdrop", self.backdrop, ("wall", "plain"))
+        choice("masks", self.masks, (False, True))
         integer("dense_strands", self.dense_strands, low=0)
         real("dt", self.dt, "s", low=0.0, low_open=True)
         real("fov_y", self.fov_y, "degrees", low=0.0, low_open=True)
@@ -172,23 +178,6 @@ WALL = (0.26, 0.265, 0.28)
 WALL_DISTANCE = 0.3
 
 
-def hard_base(vertices, faces) -> dict:
-    """A body mesh (vertices [V, 3] m, faces [F, 3]) as render.Mesh arguments with its flat
-    base (the faces lying in the plane of its lowest vertices) on vertices of its own: smooth
-    normals would average the base with the sides, and the sides' lowest ring, shaded as if
-    it faced half down, would show as a band unlike the surface above it."""
-    v, f = np.asarray(vertices, np.float64), np.asarray(faces)
-    z = v[:, 2]
-    on_base = np.abs(z - z.min()) < 1e-9 * max(1.0, float(np.ptp(z)))
-    base = on_base[f].all(axis=1)
-    used = np.unique(f[base])
-    copy = np.full(len(v), -1)
-    copy[used] = len(v) + np.arange(len(used))
-    f = f.copy()
-    f[base] = copy[f[base]]
-    return dict(vertices=np.vstack([v, v[used]]), faces=f)
-
-
 class FrameWriter:
     """Renders one frame of hair (+ the head mesh and its neck capsule, turned with the head, and
     the body: where it is, or turned with the head; Head.body_attached) with `render`,
@@ -204,7 +193,12 @@ class FrameWriter:
         self.capsules = [render.capsule_mesh(p0, p1, r) for p0, p1, r in
                          (model.capsules if model is not None else ())]
         body = head.body if head is not None else None
-        self.body = render.Mesh(**hard_base(*body)) if body is not None else None
+        self.body = None
+        if body is not None:
+            drawn = hard_base(*body)
+            smooth = render.geometry.vertex_normals(drawn["vertices"], drawn["faces"])
+            self.body = render.Mesh(**drawn, normals=seam_normals(drawn["vertices"], smooth,
+                                                                  model.capsules if model is not None else ()))
         self.body_turns = head is not None and head.body_attached == "head"
         self.settings = render.RenderSettings(supersample=shot.supersample)
         self.base = self._fitted(scene) if shot.eye is None else render.Camera(
@@ -271,10 +265,21 @@ class FrameWriter:
         view = np.asarray(camera.eye) - np.asarray(camera.target)
         lights = self.render.three_point_lights(view, up=(0.0, 0.0, 1.0))
         hair = self.render.Hair(points=hair_points, colours=self.shot.hair_colour, widths=self.shot.hair_width)
-        image = self.render.render_frame(camera, hair=hair, meshes=meshes, lights=lights,
-                                         background=BACKDROP, settings=self.settings,
-                                         backdrop=self.wall(camera))
-        self.render.write_png(path, image)
+        scene = dict(hair=hair, meshes=meshes, lights=lights, background=BACKDROP,
+                     settings=self.settings, backdrop=self.wall(camera))
+        if not self.shot.masks:
+            self.render.write_png(path, self.render.render_frame(camera, **scene))
+            return
+        buffers = self.render.render_buffers(camera, **scene)
+        self.render.write_png(path, buffers["image"])
+        grey = np.rint(255.0 * buffers["coverage"]).astype(np.uint8)
+        self.render.write_png(mask_path(path), np.repeat(grey[..., None], 3, axis=2))
+
+
+def mask_path(frame_png) -> Path:
+    """The coverage mask written beside a frame: frames/frame_NNNNN.png -> frames/mask_NNNNN.png."""
+    frame_png = Path(frame_png)
+    return frame_png.with_name("mask_" + frame_png.name.removeprefix("frame_"))
 
 
 @dataclass
@@ -413,6 +418,9 @@ def add_image_arguments(p) -> None:
 
 
 def shot_overrides(args) -> dict:
-    """The Shot fields the command line sets (--width, --height, --dense)."""
-    return {k: v for k, v in (("width", args.width), ("height", args.height),
-                              ("dense_strands", args.dense)) if v is not None}
+    """The Shot fields the command line sets (--width, --height, --dense, --masks)."""
+    overrides = {k: v for k, v in (("width", args.width), ("height", args.height),
+                                   ("dense_strands", args.dense)) if v is not None}
+    if getattr(args, "masks", False):
+        overrides["masks"] = True
+    return overrides
