@@ -23,7 +23,7 @@ import taichi as ti
 
 from ..rods.arrays import vec3
 from ..rods.frames import curvature_binormal
-from .geometry import rotation_from_vector, view_angle_terms, views
+from .geometry import rotated, rotation_from_vector, view_angle_terms, views
 
 PI = 3.141592653589793
 
@@ -139,7 +139,7 @@ class FrameKernels:
     @ti.func
     def placed(self, k, y):
         """Rest-pose point y [m] carried by slot k's head pose (about the pivot)."""
-        return self.pose_r[k] @ (y - self.pivot[None]) + self.pivot[None] + self.pose_t[k]
+        return rotated(self.pose_r[k], y - self.pivot[None]) + self.pivot[None] + self.pose_t[k]
 
     @ti.kernel
     def start(self):
@@ -155,8 +155,8 @@ class FrameKernels:
     @ti.func
     def root_frame(self, k, s):
         """Slot k's clamp frame of strand s: (root_t, d1, d2), carried by the head."""
-        rt = self.pose_r[k] @ self.root_t_head[s]
-        d1 = orthonormal_to(self.pose_r[k] @ self.root_u_head[s], rt)
+        rt = rotated(self.pose_r[k], self.root_t_head[s])
+        d1 = orthonormal_to(rotated(self.pose_r[k], self.root_u_head[s]), rt)
         return rt, d1, rt.cross(d1)
 
     @ti.kernel
@@ -178,7 +178,7 @@ class FrameKernels:
         """Slot k's curvature binormals kb (node 0's against the clamp's tangent)."""
         for s, i in ti.ndrange(self.n_strands, self.n_nodes - 1):
             if i < self.node_count[s] - 1:
-                a = self.pose_r[k] @ self.root_t_head[s]
+                a = rotated(self.pose_r[k], self.root_t_head[s])
                 if i > 0:
                     a = self.x[k, s, i] - self.x[k, s, i - 1]
                 self.kb[k, s, i] = curvature_binormal(a, self.x[k, s, i + 1] - self.x[k, s, i])

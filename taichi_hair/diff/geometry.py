@@ -31,6 +31,15 @@ def rotation_from_vector(k):
 
 
 @ti.func
+def rotated(r, v):
+    """r v for a 3x3 matrix r, written out (Taichi 1.7's matrix product accumulates in a local
+    its reverse mode reads before writing, with a warning per element)."""
+    return ti.Vector([r[0, 0] * v[0] + r[0, 1] * v[1] + r[0, 2] * v[2],
+                      r[1, 0] * v[0] + r[1, 1] * v[1] + r[1, 2] * v[2],
+                      r[2, 0] * v[0] + r[2, 1] * v[1] + r[2, 2] * v[2]])
+
+
+@ti.func
 def views(kb, u, t, angle):
     """Material curvature w = (kb . m2, -kb . m1) of binormal kb seen from an edge with Bishop
     vector u, tangent t and material angle `angle`, and the directors (m1, m2)."""
