@@ -143,6 +143,70 @@ def recover_material(*, seconds: float = 0.02, factor: float = 3.0, ellipticity:
             "iterations": rows, "wall_seconds": time.perf_counter() - clock, "steps": steps, "dt": dt}
 
 
+def hang_as_drawn(*, seconds: float = 0.01, hold_seconds: float = 0.1, iterations: int = 60, log=None) -> dict:
+    """Solve for the rest shape of a curl drawn sideways (so gravity bends it) such that it hangs
+    as drawn: BFGS on the rest positions of its free nodes [mm from the drawn ones], the loss
+    being the mean squared distance from the drawn shape at ten times over `seconds` of a run
+    that starts at the drawn shape at rest. Then hold each answer for `hold_seconds` in the
+    simulator (explicit, DER, quasistatic twist, its rest curvatures and twists from the answer)
+    beside `th.sag_free`'s answer and the drawn shape taken as its own rest shape; returns each
+    one's largest distance from the drawn shape [m]."""
+    from ..hair.sagfree import sag_free
+    from ..solver.simulator import Simulator
+    drawn = Groom.curly(np.array([[0.0, 0.0, 0.0]]), np.array([[1.0, 0.0, -0.3]]), length=0.04, n_nodes=12,
+                        curl_radius=0.004, curl_pitch=0.01)
+    material = Material()
+    drag = 3e-4
+    steps = math.ceil(seconds / (0.9 * stable_time_step(drawn, [material], drag)))
+    dt = seconds / steps
+    times = np.round(seconds * np.arange(1, 11) / 10 / dt) * dt
+    problem = Differentiable(drawn, material, dt=dt, seconds=steps * dt, drag=drag,
+                             initial_positions=drawn.positions)
+    loss = losses.positions(np.repeat(drawn.positions[None], len(times), axis=0), times)
+    unit = 1e-3  # the variables are millimetres
+
+    def rest(u):
+        positions = drawn.positions.copy()
+        positions[:, 1:] += unit * u.reshape(positions[:, 1:].shape)
+        return positions
+
+    def value(u):
+        problem.update(rest_positions=rest(u))
+        try:
+            return loss(problem.positions(times))[0]
+        except SimulationDiverged:
+            return math.inf
+
+    def value_and_grad(u):
+        problem.update(rest_positions=rest(u))
+        f, grads = problem.value_and_grad(loss, wrt=["rest_positions"])
+        return f, unit * grads["rest_positions"][:, 1:].ravel()
+
+    clock = time.perf_counter()
+    rows = []
+
+    def record(entry):
+        rows.append({"iteration": entry[0], "loss": entry[2], "gradient": entry[3],
+                     "seconds": time.perf_counter() - clock})
+        if log:
+            log(rows[-1])
+
+    u, _ = minimise(value_and_grad, value, np.zeros(drawn.positions[:, 1:].size), iterations=iterations,
+                    log=record)
+    solve_seconds = time.perf_counter() - clock
+    value(u)  # the rest values of the answer
+    ours = drawn.with_rest_curvature(problem.rest_kappa.to_numpy(), problem.rest_twist.to_numpy())
+    theirs, _ = sag_free(drawn, material, twist="quasistatic")
+    hold_steps = math.ceil(hold_seconds / dt)
+    sag = {}
+    for name, groom in (("drawn as rest shape", drawn), ("gradient solve", ours), ("sag_free", theirs)):
+        sim = Simulator(groom, material, dt=dt, strain="der", drag=drag)
+        sim.step(hold_steps)
+        sag[name] = float(np.linalg.norm(sim.positions() - drawn.positions, axis=-1).max())
+    return {"iterations": rows, "solve_seconds": solve_seconds, "sag_after_hold_m": sag,
+            "hold_seconds": hold_steps * dt, "rest_shift_mm": float(np.abs(u).max())}
+
+
 def gradient_cost(strands: int, seconds: float = 1.0) -> dict:
     """Wall time of a forward run and of a gradient (all seven inputs) for `strands` wavy
     strands (15 cm, 16 nodes) on a shaking head over `seconds`, at the explicit bound's step,
@@ -177,6 +241,8 @@ def add_parser(sub):
     p.add_argument("--seconds", type=float, default=0.02, help="length of the reference motion [s]")
     p.add_argument("--factor", type=float, default=3.0, help="how far off the start is (both values times this)")
     p.add_argument("--json", help="write the iterations and results to this JSON file")
+    p.add_argument("--hang", action="store_true", help="instead: solve a sideways curl's rest shape so that it "
+                   "hangs as drawn, and compare with th.sag_free")
     p.add_argument("--cost", metavar="N,N,...", help="instead: time a forward run and a gradient over --seconds "
                    "for each strand count (each in its own process, for its peak memory)")
     p.set_defaults(func=main)
@@ -191,6 +257,8 @@ def main(args) -> int:
         raise ValueError(f"--factor must be a finite number > 0, got {args.factor!r}")
     if args.cost:
         return cost_table([int(n) for n in args.cost.split(",")], args.seconds, args.json)
+    if args.hang:
+        return hang_table(args.json)
     print(f"{'it':>3} {'E [Pa]':>12} {'drag [N s/m^2]':>15} {'loss [m^2]':>12} {'wall [s]':>9}")
     result = recover_material(seconds=args.seconds, factor=args.factor, log=lambda r: print(
         f"{r['iteration']:3d} {r['youngs_modulus']:12.5e} {r['drag']:15.5e} {r['loss']:12.4e} {r['seconds']:9.1f}",
@@ -215,7 +283,10 @@ def cost_table(counts, seconds: float, json_path=None) -> int:
         code = ("import json, taichi_hair as th; th.init(precision='float64'); "
                 "from taichi_hair.app.inverse import gradient_cost; "
                 f"print(json.dumps(gradient_cost({int(n)}, {float(seconds)!r})))")
-        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        if done.returncode != 0:
+            lines = done.stderr.strip().splitlines() or ["(no message)"]
+            raise RuntimeError(f"the cost run of {n} strands failed: {lines[-1]}")
         row = json.loads(done.stdout.strip().splitlines()[-1])
         rows.append(row)
         print(f"{n:7d} {row['steps']:6d} {row['forward_s']:11.2f} {row['gradient_s']:12.2f} {row['ratio']:6.2f} "
@@ -223,4 +294,18 @@ def cost_table(counts, seconds: float, json_path=None) -> int:
     if json_path:
         with open(json_path, "w") as f:
             json.dump(rows, f, indent=1)
+    return 0
+
+
+def hang_table(json_path=None) -> int:
+    print(f"{'it':>3} {'loss [m^2]':>12} {'|gradient|':>11} {'wall [s]':>9}")
+    result = hang_as_drawn(log=lambda r: print(f"{r['iteration']:3d} {r['loss']:12.4e} {r['gradient']:11.3e} "
+                                               f"{r['seconds']:9.1f}", flush=True))
+    print(f"rest shape solved in {result['solve_seconds']:.1f} s (rest nodes moved up to {result['rest_shift_mm']:.3f} mm); "
+          f"largest distance from the drawn shape after {result['hold_seconds']:.3f} s in the simulator:")
+    for name, sag in result["sag_after_hold_m"].items():
+        print(f"  {name:22s} {sag * 1e3:9.4f} mm")
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(result, f, indent=1, default=float)
     return 0

@@ -32,6 +32,7 @@ def allocate(holder, n_strands: int, n_nodes: int, n_keys: int, slots: int, chec
     holder.drag = scalar(())
     holder.rest_x = vector((S, N))
     holder.initial_v = vector((S, N))
+    holder.start_x = vector((S, N), grad=False)
     holder.keys = vector(n_keys, 6)
     holder.rest_theta, holder.rest_twist = scalar((S, N - 1), False), scalar((S, N), False)
     holder.root_u_head = vector(S, grad=False)

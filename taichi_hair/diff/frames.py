@@ -143,10 +143,14 @@ class FrameKernels:
 
     @ti.kernel
     def start(self):
-        """Slot 0 from the rest shape at the first pose, the initial velocities, the rest angles."""
+        """Slot 0 from the rest shape (or the given start) at the first pose, the initial
+        velocities, the rest angles."""
         for s, i in ti.ndrange(self.n_strands, self.n_nodes):
             if i < self.node_count[s]:
-                self.x[0, s, i] = self.placed(0, self.rest_x[s, i])
+                if ti.static(self.own_start):
+                    self.x[0, s, i] = self.placed(0, self.start_x[s, i])
+                else:
+                    self.x[0, s, i] = self.placed(0, self.rest_x[s, i])
                 self.v[0, s, i] = self.initial_v[s, i]
             if i < self.node_count[s] - 1:
                 self.ang[0, self.twist_iterations, s, i] = self.rest_theta[s, i]

@@ -39,17 +39,22 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
     (the head's collider, frictionless, at the rest pose); motion: None (still) or pose
     parameters [M, 6] (rotation vector [rad], translation [m]) at M >= 2 times evenly spread
     over [0, seconds], linear in between, turning about `pivot` [m]; initial_velocities: None or
-    [S, N, 3] m/s; projection_iterations, twist_iterations: fixed per step (the forward run's
+    [S, N, 3] m/s; initial_positions: None (the rest positions) or [S, N, 3] m, the start at the
+    rest pose, held fixed (the rest shape stays a separate input); projection_iterations, twist_iterations: fixed per step (the forward run's
     residuals are in `health` after a run); memory: bytes the segment arrays may take (their
     length, hence the number of checkpoints, follows from it); segment_steps: that length
     chosen directly (default: about the square root of the step count, within `memory`)."""
 
     def __init__(self, groom: Groom, material, *, dt: float, seconds: float, gravity=(0.0, 0.0, -9.81),
                  drag: float = 0.0, head=None, motion=None, pivot=(0.0, 0.0, 0.0), initial_velocities=None,
+                 initial_positions=None,
                  projection_iterations: int = 3, twist_iterations: int = 2, memory: float = 2e9,
                  segment_steps: int | None = None):
         if not isinstance(groom, Groom):
             raise ValueError(f"groom must be a th.Groom, got {type(groom).__name__}")
+        if groom.rest_curvature is not None or groom.rest_twist is not None:
+            raise ValueError("groom must carry no rest_curvature or rest_twist of its own (e.g. sag_free's): "
+                             "Differentiable measures the rest shape from rest_positions, which it differentiates")
         materials = per_strand_materials(material, groom.n_strands)
         self.per_strand = not isinstance(material, Material)
         self.dt = real("dt", dt, "s", low=0.0, low_open=True)
@@ -68,6 +73,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
         if head is not None and not isinstance(head, Sphere):
             raise ValueError(f"head must be None or a th.Sphere, got {type(head).__name__}")
         self.collide = head is not None
+        self.own_start = initial_positions is not None
         self.n_strands, self.n_nodes = groom.n_strands, groom.max_nodes
         self.groom, self.materials = groom, materials
         self.key_values = self._motion(motion)
@@ -83,6 +89,9 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
         self.twist_solve = SolveOp(self, self.tdiag, self.tup, self.tres, self.tc, self.td, self.tstep)
         self._fill(groom, materials, vector3("gravity", gravity, "m/s^2"), drag, head,
                    vector3("pivot", pivot, "m"), initial_velocities)
+        if self.own_start:
+            self.start_x.from_numpy(self._array("initial_positions", initial_positions,
+                                                (self.n_strands, self.n_nodes, 3)))
         self.health = {}
 
     # ---------------------------------------------------------------- inputs
@@ -145,8 +154,6 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
         self.rest_theta.from_numpy(np.nan_to_num(rest_theta))
         rest_twist = np.zeros((self.n_strands, self.n_nodes))
         rest_twist[:, 1:-1] = np.diff(rest_theta, axis=1)
-        if groom.rest_twist is not None:
-            rest_twist = np.asarray(groom.rest_twist, dtype=np.float64)
         self.rest_twist.from_numpy(np.nan_to_num(rest_twist))
 
     def update(self, **values) -> None:
