@@ -124,8 +124,7 @@ def test_gradients_match_central_differences_elliptic_curl():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("shape, ellipticity, contact", [
-    ("straight", 1.0, False), ("curl", 1.0, False), ("curl", 2.0, False),
-    ("straight", 1.0, True), ("curl", 2.0, True)])
+    ("straight", 1.0, False), ("curl", 2.0, False), ("straight", 1.0, True)])
 def test_gradients_match_central_differences(shape, ellipticity, contact):
     groom = tight_curl() if shape == "curl" else straight()
     p = problem(groom, ellipticity, head=touching_sphere(groom) if contact else None)
@@ -211,7 +210,7 @@ def test_bad_input_is_refused_before_any_work():
 def test_inverse_demo_recovers_material_from_three_times_off():
     """Young's modulus and drag recovered from the motion alone to within 1 % (the goal)."""
     from taichi_hair.app.inverse import recover_material
-    result = recover_material(seconds=0.01, iterations=30)
+    result = recover_material(seconds=0.006, iterations=20)
     assert result["iterations"][-1]["loss"] < 1e-6 * result["iterations"][0]["loss"]
     assert max(result["relative_error"].values()) < 1e-2, result["relative_error"]
 

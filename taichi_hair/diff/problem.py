@@ -233,7 +233,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
     def check_health(self, step: int, k: int) -> None:
         """Refuse a run whose state at slot k (global step `step`) is not finite or whose edges
         are stretched past FAILED_RESIDUAL; record the largest residuals."""
-        strain, twist_step = self.residuals(k)
+        strain, twist_step = (float(value) for value in self.residuals(k))
         self.health["strain"] = max(self.health.get("strain", 0.0), strain)
         self.health["twist_step"] = max(self.health.get("twist_step", 0.0), twist_step)
         if not (strain <= FAILED_RESIDUAL and math.isfinite(twist_step)):
