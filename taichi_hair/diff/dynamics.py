@@ -9,7 +9,8 @@ iteration to the next, so their reverse mode needs no stack of past values."""
 import taichi as ti
 
 from ..rods.arrays import vec3
-from .geometry import kb_gradient_to_nodes, view_kb_gradient
+from ..rods.rod import kb_gradient_to_nodes
+from .geometry import view_kb_gradient
 
 
 @ti.data_oriented

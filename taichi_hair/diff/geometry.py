@@ -68,15 +68,3 @@ def view_kb_gradient(w, rest, m1, m2, ei1, ei2, inv_2l):
     """d E / d kb of one view (E as in view_angle_terms): w1 = kb . m2, w2 = -kb . m1."""
     d = w - rest
     return inv_2l * (ei1 * d[0] * m2 - ei2 * d[1] * m1)
-
-
-@ti.func
-def kb_gradient_to_nodes(g, kb, a, b):
-    """(dE/dx_{i-1}, dE/dx_{i+1}) from g = dE/dkb_i, a = e^{i-1}, b = e^i (docs/model.md, Forces)."""
-    la = a.norm()
-    lb = b.norm()
-    den = la * lb + a.dot(b)
-    gk = g.dot(kb)
-    before = (2.0 * g.cross(b) + gk * (b + (lb / la) * a)) / den
-    after = (2.0 * g.cross(a) - gk * (a + (la / lb) * b)) / den
-    return before, after

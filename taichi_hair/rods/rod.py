@@ -306,14 +306,22 @@ def add_node_gradient(s, i, d_prev, d_next, grad: ti.template()):
 
 
 @ti.func
-def add_kb_gradient(s, i, e0, e1, kbi, g, grad: ti.template()):
-    """grad[x_{i-1..i+1}] += (d kb_i / d x)^T g, current-length kb (docs/model.md)."""
+def kb_gradient_to_nodes(g, kbi, e0, e1):
+    """((d kb_i / d x_{i-1})^T g, (d kb_i / d x_{i+1})^T g) for kb_i of edges e0 = e^{i-1},
+    e1 = e^i at their current lengths (docs/model.md, "Forces"); x_i takes minus their sum."""
     l0 = e0.norm()
     l1 = e1.norm()
     denom = l0 * l1 + e0.dot(e1)
     gk = g.dot(kbi)
     d_prev = (2.0 * g.cross(e1) + gk * (e1 + (l1 / l0) * e0)) / denom
     d_next = (2.0 * g.cross(e0) - gk * (e0 + (l0 / l1) * e1)) / denom
+    return d_prev, d_next
+
+
+@ti.func
+def add_kb_gradient(s, i, e0, e1, kbi, g, grad: ti.template()):
+    """grad[x_{i-1..i+1}] += (d kb_i / d x)^T g, current-length kb (docs/model.md)."""
+    d_prev, d_next = kb_gradient_to_nodes(g, kbi, e0, e1)
     add_node_gradient(s, i, d_prev, d_next, grad)
 
 
