@@ -112,6 +112,42 @@ def _linear_colours(c: np.ndarray) -> np.ndarray:
     return srgb_to_linear(c)
 
 
+_UNIFORM = ("vertex_colours", "vertex_widths", "vertex_sigma", "vertex_beta_m", "fibre")
+_last_uniform = None   # (key, {name: value}) of the last Hair of one colour and one width
+
+
+def _uniform_key(colours, widths, material, counts: np.ndarray):
+    """What a Hair's per-vertex colours, widths and optics depend on when one colour (3,) and
+    one width serve all its fibres and no material is given: (colour, width, counts); None
+    otherwise."""
+    if material is not None or np.shape(colours) != (3,) or np.shape(widths) != ():
+        return None
+    c, w = np.asarray(colours, dtype=np.float64), np.asarray(widths, dtype=np.float64)
+    return c.tobytes(), w.tobytes(), counts
+
+
+def _reuse_uniform(hair, key) -> bool:
+    """Give `hair` the per-vertex arrays of the last Hair of the same key (`_uniform_key`), if
+    any: a simulation's frames draw the same strands in the same colour every time, and the
+    renderer then finds the very arrays it uploaded last and does not upload them again."""
+    if key is None or _last_uniform is None:
+        return False
+    last, values = _last_uniform
+    if last[:2] != key[:2] or not np.array_equal(last[2], key[2]):
+        return False
+    for name in _UNIFORM:
+        object.__setattr__(hair, name, values[name])
+    return True
+
+
+def _keep_uniform(hair, key) -> None:
+    """Remember `hair`'s per-vertex arrays under `key` for `_reuse_uniform` (one Hair kept)."""
+    global _last_uniform
+    if key is not None:
+        _last_uniform = ((key[0], key[1], np.array(key[2])),
+                         {name: getattr(hair, name) for name in _UNIFORM})
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Hair:
     """Hair as polylines.
@@ -155,6 +191,33 @@ class Hair:
         x, counts = _strands(self.points)
         if not np.all(np.isfinite(x)):
             raise ValueError("points must be finite, got NaN or inf")
+        if not 0.0 < self.opacity <= 1.0:
+            raise ValueError(f"opacity must be in (0, 1], got {self.opacity}")
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        segments, neighbours = _topology(counts)
+        set_ = lambda n, v: object.__setattr__(self, n, v)
+        set_("vertices", x.astype(np.float32))
+        set_("segments", segments)
+        set_("neighbours", neighbours)
+        set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
+        uniform = _uniform_key(self.colours, self.widths, self.material, counts)
+        fresh = not _reuse_uniform(self, uniform)
+        if fresh:
+            self._set_appearance(counts)
+        # derived once and never changed: read-only, so the renderer may keep device copies
+        for name in ("vertices", "vertex_colours", "vertex_widths", "segments", "neighbours",
+                     "strand_starts", "vertex_sigma", "vertex_beta_m"):
+            a = getattr(self, name)
+            if a.base is not None:   # a view could change through its base: own the data
+                a = a.copy()
+                set_(name, a)
+            a.flags.writeable = False
+        if fresh:
+            _keep_uniform(self, uniform)
+
+    def _set_appearance(self, counts: np.ndarray) -> None:
+        """vertex_colours, vertex_widths, vertex_sigma, vertex_beta_m and fibre from the
+        colours, widths and material, checked."""
         # without a material the absorption is inverted from the colours: per colour as given
         # (one per hair or strand, usually), before broadcasting to the vertices
         invert = self.material is None
@@ -170,26 +233,10 @@ class Hair:
         widths = _per_vertex("widths", self.widths, counts, ())
         if widths.size and not (np.all(np.isfinite(widths)) and widths.min() > 0.0):
             raise ValueError(f"widths must be > 0 m, got minimum {widths.min():.3g}")
-        if not 0.0 < self.opacity <= 1.0:
-            raise ValueError(f"opacity must be in (0, 1], got {self.opacity}")
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-        segments, neighbours = _topology(counts)
         set_ = lambda n, v: object.__setattr__(self, n, v)
-        set_("vertices", x.astype(np.float32))
         set_("vertex_colours", linear.astype(np.float32))
         set_("vertex_widths", np.ascontiguousarray(widths, dtype=np.float32))
-        set_("segments", segments)
-        set_("neighbours", neighbours)
-        set_("strand_starts", np.concatenate([starts, [len(x)]]).astype(np.int64))
         self._set_optics(counts, linear, sigma)
-        # derived once and never changed: read-only, so the renderer may keep device copies
-        for name in ("vertices", "vertex_colours", "vertex_widths", "segments", "neighbours",
-                     "strand_starts", "vertex_sigma", "vertex_beta_m"):
-            a = getattr(self, name)
-            if a.base is not None:   # a view could change through its base: own the data
-                a = a.copy()
-                set_(name, a)
-            a.flags.writeable = False
 
     def subset(self, fraction: float) -> dict:
         """The strands the renderer draws: a fixed, seeded `fraction` of them (level of

@@ -89,7 +89,7 @@ def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
         z0[i, j] = f32(3.0e38)
         for k in range(opacity.shape[2]):
             opacity[i, j, k] = f32(0.0)
-            fixed[i, j, k] = 0
+            fixed[k, i, j] = 0
 
 
 @ti.func
@@ -156,10 +156,10 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
                        bounds: ti.types.ndarray(dtype=f32, ndim=1),
                        fixed: ti.types.ndarray(dtype=ti.i64, ndim=3)):
     """Add each hair sample's opacity, alpha * (fraction of a texel its width [m] covers) *
-    (its length in texels), into the slab (R, R, L) that holds it behind its texel's z0: in
+    (its length in texels), into the slab (L, R, R) that holds it behind its texel's z0: in
     fixed point (OPACITY_STEPS per unit), whose integer sums do not depend on the order the
     threads add in, so a frame renders to the same bytes every time (float atomics did not)."""
-    size, layers = z0.shape[0], fixed.shape[2]
+    size, layers = z0.shape[0], fixed.shape[0]
     for e in range(n):
         k = seg[e]
         a, b = screen[k], screen[k + 1]
@@ -173,7 +173,7 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
             dz = p[2] - z0[j, i]
             slab = slab_of(bounds, layers, dz)
             amount = alpha * ti.min(w / texel, f32(1.0)) * length / ti.cast(ns, f32)
-            ti.atomic_add(fixed[j, i, slab], ti.cast(ti.round(amount * OPACITY_STEPS), ti.i64))
+            ti.atomic_add(fixed[slab, j, i], ti.cast(ti.round(amount * OPACITY_STEPS), ti.i64))
 
 
 @ti.kernel
@@ -184,7 +184,7 @@ def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
     for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
         total = ti.i64(0)
         for k in range(opacity.shape[2]):
-            total += fixed[i, j, k]
+            total += fixed[k, i, j]
             opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
 
 
@@ -350,7 +350,9 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     name = "shadow" if enabled else "shadow_off"
     z0 = buffer(f"{name}_z0", f32, (r, r))
     opacity = buffer(f"{name}_opacity", f32, (r, r, layers))
-    fixed = buffer(f"{name}_opacity_fixed", ti.i64, (r, r, layers))
+    # slab-major, unlike `opacity`: a strand's samples one texel apart then mostly land in the
+    # cache line of the sample before (texel-major, each sample would miss on a line of its own)
+    fixed = buffer(f"{name}_opacity_fixed", ti.i64, (layers, r, r))
     mesh_key = buffer(f"{name}_mesh_key", ti.i64, (r, r))
     clear_shadow(z0, opacity, fixed)
     clear_keys_2d(mesh_key)
