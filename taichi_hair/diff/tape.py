@@ -55,7 +55,7 @@ class SegmentKernels:
         """Add the loss gradient g [S, N, 3] to slot k's positions."""
         for s, i in ti.ndrange(self.n_strands, self.n_nodes):
             if i < self.node_count[s]:
-                self.x.grad[k, s, i] += ti.Vector([g[s, i, 0], g[s, i, 1], g[s, i, 2]])
+                self.x.grad[k, s, i] += ti.Vector([ti.cast(g[s, i, d], float) for d in ti.static(range(3))])
 
     @ti.kernel
     def gather(self, k: ti.i32, out: ti.types.ndarray()):
