@@ -47,7 +47,8 @@ def problem(groom, ellipticity, head=None, seconds=STEPS * DT):
                              head=head, motion=MOTION, initial_velocities=velocities_towards(groom, centre, 0.4))
 
 
-INPUTS = ("youngs_modulus", "shear_modulus", "density", "drag", "rest_positions", "initial_velocities", "motion")
+INPUTS = ("youngs_modulus", "shear_modulus", "density", "radius", "drag", "rest_positions", "initial_velocities",
+          "motion")
 
 
 def gradient_errors(p, times, seed=1):
@@ -57,7 +58,7 @@ def gradient_errors(p, times, seed=1):
     base = p.positions(times)
     loss = th.losses.positions(base + rng.normal(0.0, 1e-3, base.shape), times)
     value, grads = p.value_and_grad(loss, wrt=INPUTS)
-    start = {"youngs_modulus": 3.0e9, "shear_modulus": 1.0e9, "density": 1300.0, "drag": 2e-4,
+    start = {"youngs_modulus": 3.0e9, "shear_modulus": 1.0e9, "density": 1300.0, "radius": 40e-6, "drag": 2e-4,
              "rest_positions": p.groom.positions.copy(), "initial_velocities": p.initial_v.to_numpy(),
              "motion": p.key_values.copy()}
     errors = {}
@@ -203,7 +204,7 @@ def test_bad_input_is_refused_before_any_work():
     with pytest.raises(ValueError, match="times must be whole numbers of steps"):
         p.positions([3 * DT])
     with pytest.raises(ValueError, match="wrt entries must be among"):
-        p.value_and_grad(th.losses.positions(np.zeros((1, 1, 14, 3)), [DT]), wrt=["radius"])
+        p.value_and_grad(th.losses.positions(np.zeros((1, 1, 14, 3)), [DT]), wrt=["ellipticity"])
 
 
 @pytest.mark.slow

@@ -28,7 +28,7 @@ def allocate(holder, n_strands: int, n_nodes: int, n_keys: int, slots: int, chec
     holder.node_count = ti.field(ti.i32, shape=S)
     # inputs
     holder.youngs_modulus, holder.shear_modulus, holder.density = scalar(S), scalar(S), scalar(S)
-    holder.radius, holder.ellipticity = scalar(S, False), scalar(S, False)
+    holder.radius, holder.ellipticity = scalar(S), scalar(S, False)
     holder.drag = scalar(())
     holder.rest_x = vector((S, N))
     holder.initial_v = vector((S, N))
@@ -68,4 +68,4 @@ def allocate(holder, n_strands: int, n_nodes: int, n_keys: int, slots: int, chec
 SLOT_FIELDS = ("pose_r", "pose_t", "x", "v", "ang", "u", "kb", "f", "bend", "hol", "xp", "xc", "pdiag", "pup",
                "pres", "pc", "pd", "lam", "tdiag", "tup", "tres", "tc", "td", "tstep")
 DERIVED_FIELDS = ("stiffness", "rest_length", "voronoi", "mass", "root_t_head", "rest_u", "rest_kb", "rest_kappa")
-INPUT_FIELDS = ("youngs_modulus", "shear_modulus", "density", "drag", "rest_x", "initial_v", "keys")
+INPUT_FIELDS = ("youngs_modulus", "shear_modulus", "density", "radius", "drag", "rest_x", "initial_v", "keys")

@@ -19,13 +19,14 @@ from ..solver.stability import SimulationDiverged, stable_time_step
 from ..validation import integer, real, vector3
 from ..world.colliders import Sphere
 from .dynamics import DynamicsKernels
-from .fields import allocate, slot_bytes
+from .fields import DERIVED_FIELDS, INPUT_FIELDS, allocate, slot_bytes
 from .frames import FrameKernels
 from .tape import SegmentKernels
 from .tridiagonal import SolveOp, TridiagonalKernels
 
-WRT = ("youngs_modulus", "shear_modulus", "density", "drag", "rest_positions", "initial_velocities", "motion")
-MATERIAL_WRT = ("youngs_modulus", "shear_modulus", "density")
+WRT = ("youngs_modulus", "shear_modulus", "density", "radius", "drag", "rest_positions", "initial_velocities",
+       "motion")
+MATERIAL_WRT = ("youngs_modulus", "shear_modulus", "density", "radius")
 # a step whose edge lengths are off by more than this (relative) after its projection failed
 FAILED_RESIDUAL = 1e-2
 
@@ -113,7 +114,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
     def _fill(self, groom, materials, gravity, drag, head, pivot, initial_velocities):
         S, N = self.n_strands, self.n_nodes
         self.node_count.from_numpy(groom.node_counts.astype(np.int32))
-        for name in MATERIAL_WRT + ("radius", "ellipticity"):
+        for name in MATERIAL_WRT + ("ellipticity",):
             getattr(self, name).from_numpy(np.array([getattr(m, name) for m in materials]))
         self.drag[None] = drag
         self.gravity[None] = gravity
@@ -158,7 +159,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
 
     def update(self, **values) -> None:
         """Set inputs for the next run without rebuilding: any of youngs_modulus, shear_modulus,
-        density (a number, or [S] when the material was given per strand), drag, rest_positions
+        density, radius (a number, or [S] when the material was given per strand), drag, rest_positions
         [S, N, 3], initial_velocities [S, N, 3], motion [M, 6]."""
         for name, value in values.items():
             if name in MATERIAL_WRT:
@@ -215,8 +216,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
         seeds = {}
         for n, g in zip(steps, d_positions):
             seeds[int(n)] = seeds.get(int(n), 0.0) + g
-        for name in ("youngs_modulus", "shear_modulus", "density", "drag", "rest_x", "initial_v", "keys") + \
-                ("stiffness", "rest_length", "voronoi", "mass", "root_t_head", "rest_u", "rest_kb", "rest_kappa"):
+        for name in INPUT_FIELDS + DERIVED_FIELDS:
             getattr(self, name).grad.fill(0)
         self.backward_pass(seeds)
         return float(value), {name: self._gradient(name) for name in wrt}
