@@ -17,6 +17,7 @@ from ..diff.problem import Differentiable
 from ..rods.groom import Groom
 from ..rods.materials import Material
 from ..solver.stability import SimulationDiverged, stable_time_step
+from ..validation import cli_int_list, cli_real
 
 ARMIJO = 1e-4  # fraction of the predicted decrease a line-search step must deliver
 FIRST_STEP = 0.5  # length of the first step in the parameters (log values: a factor e^0.5)
@@ -240,25 +241,25 @@ def gradient_cost(strands: int, seconds: float = 1.0) -> dict:
 
 def add_parser(sub):
     p = sub.add_parser("inverse", help="recover Young's modulus and drag of a curl from its motion by gradients")
-    p.add_argument("--seconds", type=float, default=0.02, help="length of the reference motion [s]")
-    p.add_argument("--factor", type=float, default=3.0, help="how far off the start is (both values times this)")
-    p.add_argument("--json", help="write the iterations and results to this JSON file")
+    p.add_argument("--seconds", type=cli_real("--seconds", 0.0, 100.0, unit="s"), default=0.02,
+                   help="length of the reference motion (with --cost: of each timed run) [s]")
+    p.add_argument("--factor", type=cli_real("--factor", 0.0, 100.0), default=3.0,
+                   help="how far off the start is (both values times this)")
+    p.add_argument("--json", default=None, help="write the iterations and results to this JSON file "
+                   "(default: none, the table only)")
     p.add_argument("--hang", action="store_true", help="instead: solve a sideways curl's rest shape so that it "
                    "hangs as drawn, and compare with th.sag_free")
-    p.add_argument("--cost", metavar="N,N,...", help="instead: time a forward run and a gradient over --seconds "
-                   "for each strand count (each in its own process, for its peak memory)")
+    p.add_argument("--cost", type=cli_int_list("--cost", 1, 1_000_000), default=None, metavar="N,N,...",
+                   help="instead: time a forward run and a gradient over --seconds for each strand count, each in "
+                   "its own process for its peak memory (default: none, the material demo)")
     p.set_defaults(func=main)
 
 
 def main(args) -> int:
     from ..runtime import init
-    init(precision="float64")
-    if not (args.seconds > 0 and math.isfinite(args.seconds)):
-        raise ValueError(f"--seconds must be a finite number > 0 s, got {args.seconds!r}")
-    if not (args.factor > 0 and math.isfinite(args.factor)):
-        raise ValueError(f"--factor must be a finite number > 0, got {args.factor!r}")
     if args.cost:
-        return cost_table([int(n) for n in args.cost.split(",")], args.seconds, args.json)
+        return cost_table(args.cost, args.seconds, args.json)
+    init(precision="float64")
     if args.hang:
         return hang_table(args.json)
     print(f"{'it':>3} {'E [Pa]':>12} {'drag [N s/m^2]':>15} {'loss [m^2]':>12} {'wall [s]':>9}")
