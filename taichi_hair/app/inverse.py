@@ -304,7 +304,8 @@ def hang_table(json_path=None) -> int:
     print(f"{'it':>3} {'loss [m^2]':>12} {'|gradient|':>11} {'wall [s]':>9}")
     result = hang_as_drawn(log=lambda r: print(f"{r['iteration']:3d} {r['loss']:12.4e} {r['gradient']:11.3e} "
                                                f"{r['seconds']:9.1f}", flush=True))
-    print(f"rest shape solved in {result['solve_seconds']:.1f} s (rest nodes moved up to {result['rest_shift_mm']:.3f} mm); "
+    print(f"rest shape solved in {result['solve_seconds']:.1f} s (rest nodes moved up to "
+          f"{result['rest_shift_mm']:.3f} mm); "
           f"largest distance from the drawn shape after {result['hold_seconds']:.3f} s in the simulator:")
     for name, sag in result["sag_after_hold_m"].items():
         print(f"  {name:22s} {sag * 1e3:9.4f} mm")

@@ -57,7 +57,8 @@ def allocate(holder, n_strands: int, n_nodes: int, n_keys: int, slots: int, chec
     for name in ("tdiag", "tup", "tres", "tc", "td", "tstep"):
         setattr(holder, name, scalar((K, W, S, N - 1)))
     # the tridiagonal adjoint's scratch (tridiagonal.py)
-    holder.mu_c, holder.mu_d, holder.mu = scalar((S, N - 1), False), scalar((S, N - 1), False), scalar((S, N - 1), False)
+    for name in ("mu_c", "mu_d", "mu"):
+        setattr(holder, name, scalar((S, N - 1), False))
     # checkpoints (segment starts) and the gradient carried from one segment to the one before
     holder.ck_x, holder.ck_v = vector((checkpoints, S, N), grad=False), vector((checkpoints, S, N), grad=False)
     holder.ck_ang = scalar((checkpoints, S, N - 1), False)

@@ -1,23 +1,25 @@
-"""The differentiable step's kernels (docs/differentiable.md): one explicit step of Kmoch's loop
-per time slot, each stage a kernel that reads one slot's arrays and writes the next's, so that
-Taichi's reverse-mode autodiff replays it (`kernel.grad`) in reverse order.
+"""The differentiable step's rest-shape, head-pose and frame kernels (docs/differentiable.md).
 
-Every array a kernel writes is written once per launch (or accumulated with +=), and read only
-after it is written: the rule under which Taichi's reverse mode is exact. Serial sweeps along a
-strand (transport, suffix sums, tridiagonal solves) run one thread per strand and keep their
-intermediate values in per-slot arrays rather than in loop-carried locals.
+The step is Kmoch's loop as stages, one kernel each (this module, dynamics.py, tridiagonal.py):
+each reads one time slot's arrays and writes its own or the next slot's, so that Taichi's
+reverse mode replays it (`kernel.grad`) in reverse order (tape.py). Every array a kernel
+writes is written once per launch (or accumulated with +=) and read only after it is written,
+the rule under which Taichi's reverse mode is exact. Serial sweeps along a strand (transport,
+suffix sums) run one thread per strand whose loop body reads only arrays; the tridiagonal
+solves carry an adjoint of their own (tridiagonal.py).
 
-Slot arrays (K = the segment's step count, P projection iterations, W twist iterations; S
-strands, N nodes; `float` is the process precision):
+Slot arrays (fields.py; K = the segment's step count, P projection iterations, W twist
+iterations; S strands, N nodes; `float` is the process precision):
 - x, v [K+1, S, N] vec3 (m, m/s): state at the slot's start; ang [K+1, W+1, S, N-1] rad:
   the material angles, the slot's own in column W, the twist iterations of a new slot in
-  columns 1..W-1;
+  columns 1..W-1; pose_r, pose_t [K+1]: the head's pose;
 - u [K+1, S, N-1] vec3 (Bishop vectors), kb [K+1, S, N] vec3 (curvature binormals);
 - f [K, S, N] vec3 (N): forces; bend [K, S, N-1] (J): dE_bend / dtheta; hol [K, S, N] (J): its
   suffix sums (the holonomy term's weights);
 - xp [K, P+1, S, N] vec3: predicted positions and projection iterates; xc [K, P, S, N]: after
-  the head's push; pc, pd, lam [K, P, S, N-1]: the projection's tridiagonal solve;
-- tc, td [K, W, S, N-1]: the twist Newton step's tridiagonal solve."""
+  the head's push; pdiag, pup, pres, pc, pd, lam [K, P, S, N-1]: the projection's tridiagonal
+  system, elimination and multipliers;
+- tdiag, tup, tres, tc, td, tstep [K, W, S, N-1]: the twist Newton step's, likewise."""
 
 import taichi as ti
 

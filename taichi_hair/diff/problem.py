@@ -41,8 +41,9 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
     parameters [M, 6] (rotation vector [rad], translation [m]) at M >= 2 times evenly spread
     over [0, seconds], linear in between, turning about `pivot` [m]; initial_velocities: None or
     [S, N, 3] m/s; initial_positions: None (the rest positions) or [S, N, 3] m, the start at the
-    rest pose, held fixed (the rest shape stays a separate input); projection_iterations, twist_iterations: fixed per step (the forward run's
-    residuals are in `health` after a run); memory: bytes the segment arrays may take (their
+    rest pose, held fixed (the rest shape stays a separate input); projection_iterations,
+    twist_iterations: fixed per step (the forward run's residuals are in `health` after a
+    run); memory: bytes the segment arrays may take (their
     length, hence the number of checkpoints, follows from it); segment_steps: that length
     chosen directly (default: about the square root of the step count, within `memory`)."""
 
@@ -78,6 +79,11 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
         self.n_strands, self.n_nodes = groom.n_strands, groom.max_nodes
         self.groom, self.materials = groom, materials
         self.key_values = self._motion(motion)
+        shape = (self.n_strands, self.n_nodes, 3)
+        velocities = np.zeros(shape) if initial_velocities is None else \
+            self._array("initial_velocities", initial_velocities, shape)
+        start = None if initial_positions is None else self._array("initial_positions", initial_positions, shape)
+        gravity, pivot = vector3("gravity", gravity, "m/s^2"), vector3("pivot", pivot, "m")
         budget = real("memory", memory, "bytes", low=0.0, low_open=True)
         per_slot = slot_bytes(self.n_strands, self.n_nodes, self.projection_iterations, self.twist_iterations)
         if segment_steps is None:
@@ -88,11 +94,9 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
                  self.n_segments, self.projection_iterations, self.twist_iterations)
         self.length_solve = SolveOp(self, self.pdiag, self.pup, self.pres, self.pc, self.pd, self.lam)
         self.twist_solve = SolveOp(self, self.tdiag, self.tup, self.tres, self.tc, self.td, self.tstep)
-        self._fill(groom, materials, vector3("gravity", gravity, "m/s^2"), drag, head,
-                   vector3("pivot", pivot, "m"), initial_velocities)
-        if self.own_start:
-            self.start_x.from_numpy(self._array("initial_positions", initial_positions,
-                                                (self.n_strands, self.n_nodes, 3)))
+        self._fill(groom, materials, gravity, drag, head, pivot, velocities)
+        if start is not None:
+            self.start_x.from_numpy(start)
         self.health = {}
 
     # ---------------------------------------------------------------- inputs
@@ -111,8 +115,7 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
             raise ValueError(f"{name} must be finite with shape {list(shape)}, got {list(array.shape)}")
         return array
 
-    def _fill(self, groom, materials, gravity, drag, head, pivot, initial_velocities):
-        S, N = self.n_strands, self.n_nodes
+    def _fill(self, groom, materials, gravity, drag, head, pivot, velocities):
         self.node_count.from_numpy(groom.node_counts.astype(np.int32))
         for name in MATERIAL_WRT + ("ellipticity",):
             getattr(self, name).from_numpy(np.array([getattr(m, name) for m in materials]))
@@ -124,8 +127,6 @@ class Differentiable(FrameKernels, DynamicsKernels, TridiagonalKernels, SegmentK
             self.sphere_radius[None] = head.radius
         self.keys.from_numpy(self.key_values)
         self.rest_x.from_numpy(np.nan_to_num(groom.positions))
-        velocities = np.zeros((S, N, 3)) if initial_velocities is None else \
-            self._array("initial_velocities", initial_velocities, (S, N, 3))
         self.initial_v.from_numpy(velocities)
         self._rest_angles(groom, materials)
 
