@@ -10,7 +10,7 @@ import taichi as ti
 
 from ..rods.arrays import vec3
 from ..rods.rod import kb_gradient_to_nodes
-from .geometry import view_kb_gradient
+from .geometry import clamp_view, view_kb_gradient
 
 
 @ti.data_oriented
@@ -54,7 +54,7 @@ class DynamicsKernels:
                 g = view_kb_gradient(w1, ti.Vector([rk[2], rk[3]]), n1, n2, ei[0], ei[1], inv_2l)
                 a = rt
                 if i == 0:
-                    g += view_kb_gradient(ti.Vector([kbi.dot(d2), -kbi.dot(d1)]), ti.Vector([rk[0], rk[1]]),
+                    g += view_kb_gradient(clamp_view(kbi, d1, d2), ti.Vector([rk[0], rk[1]]),
                                           d1, d2, ei[0], ei[1], inv_2l)
                 else:
                     a = self.x[k, s, i] - self.x[k, s, i - 1]
@@ -187,7 +187,7 @@ class DynamicsKernels:
                     rt, d1, d2 = self.root_frame(k, s)
                     kb0 = self.kb[k, s, 0]
                     rk = self.rest_kappa[s, 0]
-                    d = ti.Vector([kb0.dot(d2) - rk[0], -kb0.dot(d1) - rk[1]])
+                    d = clamp_view(kb0, d1, d2) - ti.Vector([rk[0], rk[1]])
                     total += 0.25 / self.voronoi[s, 0] * (ei[0] * d[0] * d[0] + ei[1] * d[1] * d[1])
                 e, _, _ = self.edge_bend_terms(k, s, j, n, self.ang[k, w_col, s, j])
                 before = 0.0

@@ -4,9 +4,6 @@ problem. Fields whose values a gradient flows through carry a gradient field."""
 
 import taichi as ti
 
-VEC3 = ti.types.vector(3, float)
-
-
 def slot_bytes(n_strands: int, n_nodes: int, projection_iterations: int, twist_iterations: int) -> int:
     """Bytes of one slot of the segment arrays (values and gradients, the process precision)."""
     per_node = 3 * 7 + 2 + 6 * projection_iterations + 6 * projection_iterations + \

@@ -25,7 +25,7 @@ import taichi as ti
 
 from ..rods.arrays import vec3
 from ..rods.frames import curvature_binormal
-from .geometry import rotated, rotation_from_vector, view_angle_terms, views
+from .geometry import clamp_view, rotated, rotation_from_vector, view_angle_terms, views
 
 PI = 3.141592653589793
 
@@ -117,7 +117,7 @@ class FrameKernels:
                 kbi = self.rest_kb[s, i]
                 rt = self.root_t_head[s]
                 d1 = orthonormal_to(self.root_u_head[s], rt)
-                before = ti.Vector([kbi.dot(rt.cross(d1)), -kbi.dot(d1)])
+                before = clamp_view(kbi, d1, rt.cross(d1))
                 if i > 0:
                     t0 = (self.rest_x[s, i] - self.rest_x[s, i - 1]).normalized()
                     before, _, _ = views(kbi, self.rest_u[s, i - 1], t0, self.rest_theta[s, i - 1])

@@ -6,6 +6,8 @@ Every function here is smooth where it is used and written for Taichi's reverse-
 
 import taichi as ti
 
+from ..rods.frames import material_directors
+
 # below this squared angle [rad^2] the rotation's coefficients come from their series, so the
 # gradient at a zero rotation (the rest pose) is finite
 SMALL_ANGLE_SQ = 1e-8
@@ -43,12 +45,14 @@ def rotated(r, v):
 def views(kb, u, t, angle):
     """Material curvature w = (kb . m2, -kb . m1) of binormal kb seen from an edge with Bishop
     vector u, tangent t and material angle `angle`, and the directors (m1, m2)."""
-    v = t.cross(u)
-    c = ti.cos(angle)
-    s = ti.sin(angle)
-    m1 = c * u + s * v
-    m2 = -s * u + c * v
+    m1, m2 = material_directors(u, t.cross(u), angle)
     return ti.Vector([kb.dot(m2), -kb.dot(m1)]), m1, m2
+
+
+@ti.func
+def clamp_view(kb, d1, d2):
+    """Material curvature (kb . d2, -kb . d1) of binormal kb seen from the clamp's directors."""
+    return ti.Vector([kb.dot(d2), -kb.dot(d1)])
 
 
 @ti.func

@@ -71,10 +71,14 @@ class SegmentKernels:
             self.f[k, s, i] = ti.Vector([0.0, 0.0, 0.0])
 
     # ---------------------------------------------------------------- the tape
+    def segment_length(self, c: int) -> int:
+        """Steps in segment c (the last may be shorter)."""
+        return min(self.segment_steps, self.n_steps - c * self.segment_steps)
+
     def segment_ops(self, c: int) -> list:
         """The kernel launches of segment c, in order: (kernel, args)."""
         first = c * self.segment_steps
-        count = min(self.segment_steps, self.n_steps - first)
+        count = self.segment_length(c)
         ops = [(self.pose, self.pose_key(first, 0))]
         if c == 0:
             ops.append((self.start, ()))
@@ -107,7 +111,7 @@ class SegmentKernels:
         ops = self.segment_ops(c)
         for kernel, args in ops:
             kernel(*args)
-        return ops, min(self.segment_steps, self.n_steps - c * self.segment_steps)
+        return ops, self.segment_length(c)
 
     def forward_pass(self, steps_wanted) -> dict:
         """The whole run; returns {step: positions [S, N, 3] (NaN on padding)} for steps_wanted
@@ -133,11 +137,14 @@ class SegmentKernels:
         return out
 
     def backward_pass(self, seeds: dict) -> None:
-        """Gradients of the loss into the input fields' .grad, from seeds {step: dL/dx [S, N, 3]}."""
-        for name in SLOT_FIELDS:
-            getattr(self, name).grad.fill(0)
+        """Gradients of the loss into the input fields' .grad, from seeds {step: dL/dx [S, N, 3]}.
+        Follows forward_pass at once: the slot arrays still hold the last segment, which is
+        therefore not run again."""
         for c in reversed(range(self.n_segments)):
-            ops, count = self.run_segment(c)
+            if c == self.n_segments - 1:
+                ops, count = self.segment_ops(c), self.segment_length(c)
+            else:
+                ops, count = self.run_segment(c)
             for name in SLOT_FIELDS:
                 getattr(self, name).grad.fill(0)
             if c + 1 < self.n_segments:
