@@ -67,6 +67,14 @@ def minimise(value_and_grad, value, u0, *, iterations: int = 40, tolerance: floa
     return u, history
 
 
+def run_grid(seconds: float, bound: float, samples: int = 10) -> tuple:
+    """(steps, dt, times): the fewest equal steps within 0.9 of the stability bound [s] that fill
+    `seconds`, and `samples` times evenly over the run, each on the step grid."""
+    steps = math.ceil(seconds / (0.9 * bound))
+    dt = seconds / steps
+    return steps, dt, np.round(seconds * np.arange(1, samples + 1) / samples / dt) * dt
+
+
 def shaking_curl():
     """The demo's strand: a tight curl (4 mm radius, 1 cm pitch, 4 cm, 12 nodes)."""
     return Groom.curly(np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.6, -0.8]]), length=0.04, n_nodes=12,
@@ -93,9 +101,7 @@ def recover_material(*, seconds: float = 0.02, factor: float = 3.0, ellipticity:
     stiffest = 2.0 * max(youngs_modulus, start["youngs_modulus"])
     bound = stable_time_step(groom, [Material(youngs_modulus=stiffest, ellipticity=ellipticity)],
                              min(drag, start["drag"]))
-    steps = math.ceil(seconds / (0.9 * bound))
-    dt = seconds / steps
-    times = np.round(seconds * np.arange(1, samples + 1) / samples / dt) * dt
+    steps, dt, times = run_grid(seconds, bound, samples)
     clock = time.perf_counter()
     # one problem (its kernels compiled once): the reference motion first, then the fit from the start
     fit = Differentiable(groom, Material(youngs_modulus=youngs_modulus, ellipticity=ellipticity), dt=dt,
@@ -152,9 +158,7 @@ def hang_as_drawn(*, seconds: float = 0.01, hold_seconds: float = 0.1, iteration
                         curl_radius=0.004, curl_pitch=0.01)
     material = Material()
     drag = 3e-4
-    steps = math.ceil(seconds / (0.9 * stable_time_step(drawn, [material], drag)))
-    dt = seconds / steps
-    times = np.round(seconds * np.arange(1, 11) / 10 / dt) * dt
+    steps, dt, times = run_grid(seconds, stable_time_step(drawn, [material], drag))
     problem = Differentiable(drawn, material, dt=dt, seconds=steps * dt, drag=drag,
                              initial_positions=drawn.positions)
     loss = losses.positions(np.repeat(drawn.positions[None], len(times), axis=0), times)
@@ -203,17 +207,15 @@ def hang_as_drawn(*, seconds: float = 0.01, hold_seconds: float = 0.1, iteration
 
 
 def gradient_cost(strands: int, seconds: float = 1.0) -> dict:
-    """Wall time of a forward run and of a gradient (all seven inputs) for `strands` wavy
+    """Wall time of a forward run and of a gradient (all eight inputs) for `strands` wavy
     strands (15 cm, 16 nodes) on a shaking head over `seconds`, at the explicit bound's step,
     and the process's peak resident memory [bytes] after both (measure one count per process)."""
     import resource
     roots = np.stack([np.arange(strands) % 40 * 0.005, np.arange(strands) // 40 * 0.005, np.zeros(strands)], axis=1)
     groom = Groom.wavy(roots, np.tile([[0.0, 0.0, -1.0]], (strands, 1)), length=0.15, n_nodes=16)
     material = Material()
-    steps = math.ceil(seconds / (0.9 * stable_time_step(groom, [material] * strands, 3e-4)))
-    dt = seconds / steps
+    steps, dt, times = run_grid(seconds, stable_time_step(groom, [material] * strands, 3e-4))
     problem = Differentiable(groom, material, dt=dt, seconds=steps * dt, drag=3e-4, motion=shake_keys(seconds))
-    times = np.round(seconds * np.arange(1, 11) / 10 / dt) * dt
     clock = time.perf_counter()
     reference = problem.positions(times)  # compiles the forward kernels
     compile_forward = time.perf_counter() - clock
