@@ -118,6 +118,7 @@ class SegmentKernels:
         and records the checkpoints and the run's health (`self.health`)."""
         wanted = set(int(n) for n in steps_wanted)
         found = {}
+        self.health = {}
         for kernel in self.rest_kernels():
             kernel()
         for c in range(self.n_segments):
