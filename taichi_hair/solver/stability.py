@@ -131,15 +131,17 @@ def _damped_bound(bend: float, damp: float) -> float:
     return bend * ratio / (1.0 + math.sqrt(1.0 + ratio * ratio))
 
 
-def wind_bound(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> float:
-    """Air moving at max_air_speed [m/s] can drag nodes along at about that speed; the fast
-    projection of a chain converges only while a step moves nodes well under a segment length,
-    so h < factor * ds / max_air_speed (ds the shortest rest edge). math.inf without wind."""
+def wind_bounds(groom, max_air_speed: float, factor: float = DEFAULT_STABILITY_FACTOR) -> np.ndarray:
+    """Largest step h [s] the wind allows each strand [S]: air moving at max_air_speed [m/s] drags
+    nodes along at up to that speed, and the fast projection converges in a few iterations while
+    a step moves a node at most about its shortest rest edge ds: h < 2 factor ds / max_air_speed,
+    one edge per step at the default factor 0.5 (measured on the main job and the stability
+    matrix's gales: docs/model.md "Stability bound"). math.inf without wind."""
     if max_air_speed <= 0:
-        return math.inf
-    shortest = min(np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
-                   for s in range(groom.n_strands))
-    return factor * shortest / max_air_speed
+        return np.full(groom.n_strands, math.inf)
+    shortest = np.array([np.linalg.norm(np.diff(groom.strand(s), axis=0), axis=1).min()
+                         for s in range(groom.n_strands)])
+    return 2.0 * factor * shortest / max_air_speed
 
 
 @dataclass(frozen=True)
@@ -167,7 +169,7 @@ class StabilityBound:
 def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), factor: float,
                 kmoch: bool, measured: dict | None = None) -> StabilityBound:
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
-    the wind (air_speed [m/s], the fastest air), each grab spring (grabs: (name, stiffness
+    the wind (air_speed [m/s], the fastest air; each strand's over its own shortest edge), each grab spring (grabs: (name, stiffness
     [N/m], lightest free node's mass [kg])); its cause names the parameter that sets it. Drag is
     named when it at least halves the bending bound. Only the bound itself is computed here;
     the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
@@ -185,16 +187,17 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
         return ("the material's bending stiffness (youngs_modulus, radius) over the shortest "
                 "segment and the sharpest rest turn of the groom" + rule)
 
+    wind = wind_bounds(groom, air_speed, factor)
     candidates = [StabilityBound(with_drag, bending_cause),
-                  StabilityBound(wind_bound(groom, air_speed, factor),
-                                 f"the wind (fastest air {air_speed:.3g} m/s must not move a node a "
-                                 f"segment per step)")]
+                  StabilityBound(float(wind.min()),
+                                 f"the wind (fastest air {air_speed:.3g} m/s must not move a node more "
+                                 f"than a segment per step)")]
     # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k)
     candidates += [StabilityBound(2.0 * factor * math.sqrt(mass / k), f"{name}.stiffness = {k:g} N/m")
                    for name, k, mass in grabs]
     tightest = min(candidates, key=lambda b: b.dt)
-    others = min(b.dt for b in candidates[1:])  # the bounds every strand shares
-    return StabilityBound(tightest.dt, tightest.reason, np.minimum(per_strand, others))
+    shared = min([math.inf] + [b.dt for b in candidates[2:]])  # the bounds every strand shares
+    return StabilityBound(tightest.dt, tightest.reason, np.minimum(np.minimum(per_strand, wind), shared))
 
 
 def strand_substeps(dt: float, strands: np.ndarray, largest: int) -> tuple:
