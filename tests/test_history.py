@@ -32,3 +32,33 @@ def test_bench_against_head_times_both_trees_alike():
     row = rows["float32 explicit 1 guides"]
     assert row["this_ms"] > 0 and row["against_ms"] > 0 and row["ratio"] > 0
     assert "against" in history.format_comparison(result)
+
+
+def test_scene_must_be_a_script_inside_the_repository(tmp_path):
+    outside = tmp_path / "scene.py"
+    outside.write_text("")
+    with pytest.raises(ValueError, match="--scene must be a scene script inside this repository"):
+        history.check_scene(str(outside))
+    with pytest.raises(ValueError, match=r"--scene must be an existing \.py scene script"):
+        history.check_scene("scenes/no_such_scene.py")
+    assert history.check_scene("scenes/cantilever.py") == "scenes/cantilever.py"
+
+
+def test_bench_scene_needs_against():
+    from taichi_hair.app.cli import build_parser
+    from taichi_hair.app.bench import main
+    args = build_parser().parse_args(["bench", "--scene", "scenes/cantilever.py"])
+    with pytest.raises(ValueError, match="--scene compares a scene's run against an older commit: give --against"):
+        main(args)
+
+
+@pytest.mark.slow
+def test_scene_against_head_times_both_runs():
+    # a scene's run from both trees (HEAD against itself): wall time and the three per-frame
+    # medians its summary prints, each positive
+    result = history.compare("HEAD", [], rounds=1, scene="scenes/cantilever.py", frames=2)
+    rows = {r["row"]: r for r in result["rows"]}
+    assert list(rows) == ["scenes/cantilever.py wall s (2 frames)", "simulation ms per frame",
+                          "interpolation ms per frame", "rendering ms per frame"]
+    assert all(r["this_ms"] > 0 and r["against_ms"] > 0 for name, r in rows.items() if "interpolation" not in name)
+    assert "taichi-hair run scenes/cantilever.py --frames 2" in history.format_comparison(result)

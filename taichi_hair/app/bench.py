@@ -198,12 +198,19 @@ def main(args) -> int:
     if args.compile:
         return compile_main(args)
     apply_preset(args)
+    scene = None
+    if args.scene is not None:
+        if args.against is None:
+            raise ValueError("--scene compares a scene's run against an older commit: give --against REV too")
+        from .history import check_scene
+        scene = check_scene(args.scene)
     strands = args.strands if isinstance(args.strands, list) else [int(s) for s in args.strands.split(",")]
     if args.against is not None:
         from .history import bench_args_of, compare, format_comparison
         args.strands = strands
         result = compare(args.against, bench_args_of(args), args.rounds,
-                         progress=lambda line: print(line, file=sys.stderr, flush=True))
+                         progress=lambda line: print(line, file=sys.stderr, flush=True),
+                         scene=scene, frames=args.frames)
         print(json.dumps(result, indent=2) if args.json else format_comparison(result))
         return 0
     integrators = ("explicit", "implicit") if args.integrator == "both" else (args.integrator,)
@@ -304,6 +311,12 @@ def add_parser(sub):
                         "round by round, and print both with their ratio (default: this tree alone)")
     p.add_argument("--rounds", type=cli_int("--rounds", 1, 100), default=3,
                    help="alternating rounds of each tree with --against (medians over them)")
+    p.add_argument("--scene", default=None, metavar="SCRIPT",
+                   help="with --against: time this scene's run (taichi-hair run SCRIPT --frames N) in both trees "
+                        "instead of the table, e.g. the main job scenes/wind_straight.py: wall time and the "
+                        "median simulation / interpolation / rendering ms per frame (default: the table)")
+    p.add_argument("--frames", type=cli_int("--frames", 1, 100_000), default=24,
+                   help="with --scene: frames per run (default: 24)")
     cb = p.add_argument_group("cosseratbench (pip install taichi_hair[bench]; for the comparison "
                               "columns also pip install \"cosseratbench[pyelastica,mujoco]\" "
                               "\"mujoco<4\")")

@@ -1,4 +1,5 @@
-"""`taichi-hair bench --against REV`: this tree's bench against an older commit's, in one run.
+"""`taichi-hair bench --against REV`: this tree's bench against an older commit's, in one run;
+with `--scene SCRIPT`, a scene's run (the main job: scenes/wind_straight.py) instead of the table.
 
 The older commit is checked out in a temporary `git worktree` and both trees run the same bench
 command (`python -m taichi_hair bench --json ...`, each with its own tree first on PYTHONPATH),
@@ -6,15 +7,19 @@ alternating round by round so that a machine that speeds up or slows down during
 on both alike. Each row's figure is the median over the rounds of that row's ms per frame; the
 ratio is this tree's over the older one's (below 1: faster now). Only options that every commit
 of the bench understands are passed on (strands, repeats, integrator, precision, full-head
-guides).
+guides). A scene runs as `python -m taichi_hair run SCRIPT --frames N --no-progress` into a
+fresh folder, after one untimed frame in each tree (its kernels compiled into Taichi's offline
+cache); its rows are the run's wall time and the medians per frame its summary line prints.
 """
 
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -71,18 +76,61 @@ def row_times(results: list) -> dict:
     return rows
 
 
-def compare(rev: str, bench_args: list, rounds: int, progress=None) -> dict:
-    """Both trees' medians per row and their ratio (this tree / rev)."""
+def scene_times(tree: Path, script: str, frames: int) -> dict:
+    """{row: value} of one run of `script` (a path inside the tree) from `tree`'s sources: its
+    wall time [s] and the median ms per frame of simulation, interpolation and rendering."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]))
+    with tempfile.TemporaryDirectory(prefix="taichi_hair_scene_") as out:
+        start = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "taichi_hair", "run", script, "--frames", str(frames),
+                               "--no-progress", "--out", out], cwd=tree, env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - start
+    found = re.search(r"median ms per frame: simulation ([0-9.]+), interpolation ([0-9.]+), "
+                      r"rendering ([0-9.]+)", done.stdout)
+    if done.returncode != 0 or found is None:
+        tail = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
+        raise RuntimeError(f"`taichi-hair run {script}` failed in {tree}: {tail}")
+    sim, interp, render = map(float, found.groups())
+    return {f"{script} wall s ({frames} frames)": wall, "simulation ms per frame": sim,
+            "interpolation ms per frame": interp, "rendering ms per frame": render}
+
+
+def check_scene(script: str) -> str:
+    """The scene path for --scene, or ValueError naming it: a .py file inside this repository
+    (each tree runs its own copy)."""
+    path = Path(script)
+    inside = (REPOSITORY / path).resolve() if not path.is_absolute() else path.resolve()
+    try:
+        relative = inside.relative_to(REPOSITORY)
+    except ValueError:
+        raise ValueError(f"--scene must be a scene script inside this repository ({REPOSITORY}), got {script!r}") from None
+    if inside.suffix != ".py" or not inside.is_file():
+        raise ValueError(f"--scene must be an existing .py scene script (e.g. scenes/wind_straight.py), got {script!r}")
+    return str(relative)
+
+
+def compare(rev: str, bench_args: list, rounds: int, progress=None, scene=None, frames: int = 24) -> dict:
+    """Both trees' medians per row and their ratio (this tree / rev): the bench table's rows, or
+    with `scene` (check_scene's path) that scene's run of `frames` frames (scene_times)."""
     commit = resolve(rev)
     samples = {"this": {}, "against": {}}
     with checked_out(commit) as old_tree:
         trees = {"this": REPOSITORY, "against": old_tree}
+        if scene is not None:
+            if not (old_tree / scene).is_file():
+                raise ValueError(f"--scene {scene} does not exist at {rev}")
+            for name in trees:  # one untimed frame each: the kernels compiled into the offline cache
+                if progress:
+                    progress(f"warm-up: {name}")
+                scene_times(trees[name], scene, 1)
         for k in range(rounds):
             for name in ("this", "against") if k % 2 == 0 else ("against", "this"):
                 if progress:
                     progress(f"round {k + 1}/{rounds}: {name}")
-                for row, ms in row_times(run_tree(trees[name], bench_args)).items():
-                    samples[name].setdefault(row, []).append(ms)
+                measured = (scene_times(trees[name], scene, frames) if scene is not None
+                            else row_times(run_tree(trees[name], bench_args)))
+                for row, value in measured.items():
+                    samples[name].setdefault(row, []).append(value)
     rows = []
     for row, times in samples["this"].items():
         old = samples["against"].get(row)
@@ -91,14 +139,16 @@ def compare(rev: str, bench_args: list, rounds: int, progress=None) -> dict:
         rows.append({"row": row, "this_ms": this_ms, "against_ms": old_ms,
                      "ratio": this_ms / old_ms if old_ms else None})
     return {"this": _git("rev-parse", "--short", "HEAD"), "dirty": bool(_git("status", "--porcelain")),
-            "against": commit[:7], "rounds": rounds, "bench_args": bench_args, "rows": rows}
+            "against": commit[:7], "rounds": rounds, "bench_args": bench_args, "scene": scene,
+            "frames": frames if scene is not None else None, "rows": rows}
 
 
 def format_comparison(result: dict) -> str:
     this = result["this"] + (" + uncommitted changes" if result["dirty"] else "")
-    lines = [f"bench: this tree ({this}) against {result['against']}, {result['rounds']} alternating rounds, "
-             f"medians of ms per simulated frame",
-             f"{'row':<48} {'this ms':>10} {'against ms':>11} {'ratio':>7}"]
+    what = ("medians of ms per simulated frame" if not result.get("scene")
+            else f"medians of `taichi-hair run {result['scene']} --frames {result['frames']}`")
+    lines = [f"bench: this tree ({this}) against {result['against']}, {result['rounds']} alternating rounds, {what}",
+             f"{'row':<48} {'this':>10} {'against':>11} {'ratio':>7}"]
     for r in result["rows"]:
         old = f"{r['against_ms']:11.2f}" if r["against_ms"] is not None else f"{'-':>11}"
         ratio = f"{r['ratio']:7.2f}" if r["ratio"] is not None else f"{'-':>7}"
