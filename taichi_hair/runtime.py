@@ -48,6 +48,8 @@ import_taichi_quietly()
 
 import taichi as ti  # noqa: E402  (after the quiet import above)
 
+from . import source_positions  # noqa: E402
+
 _ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan, "metal": ti.metal}
 _PRECISIONS = {"float32": ti.f32, "float64": ti.f64}
 _state = {"arch": None, "precision": None}
@@ -101,6 +103,7 @@ def init(arch: str = "cpu", precision: str = "float32", *, debug: bool = False, 
     options.update(kwargs)
     print_banner()
     skip_version_check()
+    source_positions.install()
     with contextlib.redirect_stdout(sys.stderr):  # "[Taichi] Starting on arch=...": not data
         ti.init(**options)
     _state["arch"], _state["precision"] = arch, precision

@@ -58,9 +58,10 @@ LAYERS = ["rods", "world", "solver", "hair", "diff", "app"]  # each imports only
 
 def test_modules_live_in_their_layer():
     """The package shows the architecture: its folders are layers; only the package's entry
-    points and four shared helpers sit at its top."""
+    points and five shared helpers sit at its top."""
     top = sorted(p.name for p in PACKAGE.glob("*.py"))
-    assert top == ["__init__.py", "__main__.py", "diskcache.py", "progress.py", "runtime.py", "validation.py"]
+    assert top == ["__init__.py", "__main__.py", "diskcache.py", "progress.py", "runtime.py", "source_positions.py",
+                   "validation.py"]
     layers = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists())
     assert layers == sorted(LAYERS)
 
