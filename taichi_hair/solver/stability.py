@@ -169,8 +169,9 @@ class StabilityBound:
 def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), factor: float,
                 kmoch: bool, measured: dict | None = None) -> StabilityBound:
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
-    the wind (air_speed [m/s], the fastest air; each strand's over its own shortest edge), each grab spring (grabs: (name, stiffness
-    [N/m], lightest free node's mass [kg])); its cause names the parameter that sets it. Drag is
+    the wind (air_speed [m/s], the fastest air; each strand's over its own shortest edge), each
+    grab spring (grabs: (name, stiffness [N/m], lightest free node's mass [kg])); its cause
+    names the parameter that sets it. Drag is
     named when it at least halves the bending bound. Only the bound itself is computed here;
     the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
     when a refusal words it."""
