@@ -171,10 +171,9 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
     the wind (air_speed [m/s], the fastest air; each strand's over its own shortest edge), each
     grab spring (grabs: (name, stiffness [N/m], lightest free node's mass [kg])); its cause
-    names the parameter that sets it. Drag is
-    named when it at least halves the bending bound. Only the bound itself is computed here;
-    the bending cause's comparison bounds (without drag, without Kmoch's factor) are computed
-    when a refusal words it."""
+    names the parameter that sets it. Drag is named when it at least halves the bending bound.
+    Only the bound itself is computed here; the bending cause's comparison bounds (without drag,
+    without Kmoch's factor) are computed when a refusal words it."""
     per_strand = strand_time_steps(groom, materials, drag, factor, kmoch=kmoch, measured=measured)
     with_drag = float(per_strand.min())
 
