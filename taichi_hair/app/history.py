@@ -50,11 +50,15 @@ def checked_out(commit: str):
             _git("worktree", "remove", "--force", str(tree))
 
 
+def tree_env(tree: Path) -> dict:
+    """This process's environment with `tree` first on PYTHONPATH: a child runs that tree's sources."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]))
+
+
 def run_tree(tree: Path, bench_args: list) -> list:
     """The bench's JSON results ([one dict per precision]) run from `tree`'s sources."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]))
     done = subprocess.run([sys.executable, "-m", "taichi_hair", "bench", "--json", *bench_args], cwd=tree,
-                          env=env, capture_output=True, text=True)
+                          env=tree_env(tree), capture_output=True, text=True)
     if done.returncode != 0:
         tail = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
         raise RuntimeError(f"the bench failed in {tree}: {tail}")
@@ -79,11 +83,11 @@ def row_times(results: list) -> dict:
 def scene_times(tree: Path, script: str, frames: int) -> dict:
     """{row: value} of one run of `script` (a path inside the tree) from `tree`'s sources: its
     wall time [s] and the median ms per frame of simulation, interpolation and rendering."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory(prefix="taichi_hair_scene_") as out:
         start = time.perf_counter()
         done = subprocess.run([sys.executable, "-m", "taichi_hair", "run", script, "--frames", str(frames),
-                               "--no-progress", "--out", out], cwd=tree, env=env, capture_output=True, text=True)
+                               "--no-progress", "--out", out], cwd=tree, env=tree_env(tree), capture_output=True,
+                              text=True)
         wall = time.perf_counter() - start
     found = re.search(r"median ms per frame: simulation ([0-9.]+), interpolation ([0-9.]+), "
                       r"rendering ([0-9.]+)", done.stdout)
