@@ -610,6 +610,27 @@ def test_subject_fraction_measures_rows_off_the_backdrop():
     assert abs(subject_fraction(img) - 0.30) < 1e-9
 
 
+def test_subject_extent_measures_width_and_the_border(tmp_path):
+    """contact.subject_extent: a 2-row, 60-column bar on a 100 x 80 backdrop spans 0.02 of the
+    height and 0.75 of the width and keeps off the border; moved onto the last column it
+    touches it; framing takes the smallest of max(height, width) over the frames."""
+    from render.contact import framing, subject_extent
+    img = np.full((100, 80, 3), 82, np.uint8)
+    img[50:52, 10:70] = (150, 110, 60)
+    h, w, inside = subject_extent(img)
+    assert abs(h - 0.02) < 1e-9 and abs(w - 0.75) < 1e-9 and inside
+    img[50:52, 70:80] = (150, 110, 60)
+    assert not subject_extent(img)[2]
+    assert subject_extent(np.full((10, 10, 3), 5, np.uint8)) == (0.0, 0.0, True)
+    standing = np.full((100, 80, 3), 82, np.uint8)
+    standing[20:80, 40:42] = (150, 110, 60)
+    for k, frame in enumerate((img, standing)):
+        render.write_png(tmp_path / f"frame_{k:05d}.png", frame)
+    measure = framing(sorted(tmp_path.glob("frame_*.png")))
+    assert abs(measure["height"] - 0.02) < 1e-9 and abs(measure["fills"] - 0.6) < 1e-9
+    assert measure["cut"] == 1
+
+
 def test_contact_sheet_measures_framing_on_the_masks_beside_the_frames(tmp_path):
     """Frames of a shaded wall (a vertical ramp, every row unlike the top-left pixel) with a
     20-row figure: with mask_NNNNN.png beside each frame (the runner's `mask_path`) the sheet
