@@ -11,7 +11,8 @@ frame_NNNNN.png directly, as `render.turntable` writes); folders without frames 
 with a note. Rows are labelled with the folder's name, the frame numbers and the framing over
 every frame of the run (`subject_extent`): the subject's smallest fraction of the frame height,
 the smallest fraction of the frame it fills (the larger of its height and width fractions: a
-horizontal rod fills a frame by its width) and how many frames it touches the border in.
+horizontal rod fills a frame by its width) and how many frames it touches the top, left or
+right border in (a bust continues below the frame).
 Measured on each frame's coverage mask (mask_NNNNN.png beside it, `taichi-hair run --masks`,
 which --run asks for) where there is one, since a lit backdrop's shading and the figure's
 shadow on it differ from its top-left pixel as much as the figure does; else on the frame.
@@ -56,16 +57,17 @@ def _subject(image: np.ndarray, tolerance: int, mask: np.ndarray | None) -> np.n
 def subject_extent(image: np.ndarray, tolerance: int = 6, mask: np.ndarray | None = None) -> tuple:
     """(height, width, inside): the fractions of the image's height and width (H, W, 3) spanned
     by the rows and columns holding subject (0 if none), and whether the subject keeps off the
-    image's border. With `mask` (H, W) or (H, W, 3) uint8, the frame's coverage mask (255 where
-    hair or meshes cover a pixel), the subject is the pixels over `tolerance` there; else the
-    pixels that differ from the backdrop (the colour of the top-left pixel) by more than
-    `tolerance` 8-bit levels in some channel (a flat backdrop only)."""
+    image's top, left and right borders (not the bottom: a bust continues below the frame).
+    With `mask` (H, W) or (H, W, 3) uint8, the frame's coverage mask (255 where hair or meshes
+    cover a pixel), the subject is the pixels over `tolerance` there; else the pixels that
+    differ from the backdrop (the colour of the top-left pixel) by more than `tolerance` 8-bit
+    levels in some channel (a flat backdrop only)."""
     subject = _subject(image, tolerance, mask)
     rows, cols = np.nonzero(subject.any(axis=1))[0], np.nonzero(subject.any(axis=0))[0]
     if not len(rows):
         return 0.0, 0.0, True
     h, w = subject.shape
-    inside = rows[0] > 0 and cols[0] > 0 and rows[-1] < h - 1 and cols[-1] < w - 1
+    inside = rows[0] > 0 and cols[0] > 0 and cols[-1] < w - 1
     return float(rows[-1] - rows[0] + 1) / h, float(cols[-1] - cols[0] + 1) / w, bool(inside)
 
 
@@ -82,7 +84,8 @@ def _mask(frame: Path, shape) -> np.ndarray | None:
 def framing(frames) -> dict:
     """The framing of a run over all its frames [paths] (subject_extent on each frame's mask
     where there is one): {"height": the smallest height fraction, "fills": the smallest of
-    max(height, width) fractions, "cut": frames whose subject touches the border}."""
+    max(height, width) fractions, "cut": frames whose subject touches the top, left or right
+    border}."""
     height, fills, cut = 1.0, 1.0, 0
     for path in frames:
         image = read_png(path)
@@ -170,7 +173,7 @@ def main(argv=None) -> None:
     for name, f, fill, cut in zip(r["rows"], r["fractions"], r["fills"], r["cut"]):
         print(f"{name}: subject at least {100 * f:.0f} % of the frame height and fills at least "
               f"{100 * fill:.0f} % of the frame (the larger of height and width) over all frames; "
-              f"touches the border in {cut} frames")
+              f"touches the top, left or right border in {cut} frames")
     print(f"{r['path']}: {len(r['rows'])} rows")
 
 

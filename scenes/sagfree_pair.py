@@ -53,5 +53,5 @@ def build() -> th.Scene:
 
 
 def shot() -> th.Shot:
-    return th.Shot(frames=72, fps=24, hair_width=6e-4, hair_colour=(0.25, 0.15, 0.08),
+    return th.Shot(frames=72, fps=24, hair_width=2.5e-3, hair_colour=(0.55, 0.4, 0.25),
                 view=(0.00, -1.00, 0.01), fov_y=30.0, reach=0.1)

@@ -19,4 +19,4 @@ def build() -> th.Scene:
 
 def shot() -> th.Shot:
     return th.Shot(frames=72, fps=24, dense_strands=20000, hair_colour=(0.55, 0.38, 0.2),
-                view=(0.00, 0.99, 0.16), reach=0.6)
+                view=(0.00, 0.99, 0.16), reach=1.0)
