@@ -22,7 +22,7 @@ from .colour import srgb_colour, srgb_to_linear
 from .geometry import Hair, Mesh, merge_meshes
 from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish,
                      mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
-                     unpack_image, vec3i)
+                     srgb_table, unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
 from .bundles import HairArgs, LightSetArgs, MeshArgs, MeshPixelArgs
 from .fibre_lobes import table_args
@@ -349,7 +349,7 @@ def _render(camera, hair, meshes, lights, lighting, background, settings,
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
     image = buffer("image", ti.u32, (camera.height, camera.width))
-    finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
+    finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image, srgb_table())
     return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha, mesh_key=mesh_key)
 
 
