@@ -25,6 +25,7 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
+from .runtime import on_cpu
 
 vec2f = ti.types.vector(2, ti.f32)
 vec3i = ti.types.vector(3, ti.i32)
@@ -66,8 +67,13 @@ def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
 
 @ti.kernel
 def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
-    for i, j in key:
-        key[i, j] = empty_key()
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(key.shape[0]):
+            for j in range(key.shape[1]):
+                key[i, j] = empty_key()
+    else:
+        for i, j in key:
+            key[i, j] = empty_key()
 
 
 @ti.func
@@ -138,29 +144,43 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
     8 neighbours differs in showing a mesh, in depth by over 2 %, or in which mesh it shows
     (part (F,): each face's mesh; where a neck meets a body, depth is continuous but the
     surfaces cross); -1 elsewhere (and past `capacity` slots). The slot's EDGE_SAMPLES^2 keys
-    are cleared; count[0]: slots taken (start at 0). One thread per pixel."""
+    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row)."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
-    for py, px in mesh_key:
-        k = mesh_key[py, px]
-        is_edge = 0
-        for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
-            k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
-            if (k == empty_key()) != (k2 == empty_key()):
+    if ti.static(on_cpu()):
+        for py in range(height):
+            for px in range(width):
+                mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+    else:
+        for py, px in mesh_key:
+            mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+
+
+@ti.func
+def mark_mesh_edge(mesh_key: ti.template(), capacity: ti.i32, count: ti.template(),
+                   edge_index: ti.template(), sub_key: ti.template(), part: ti.template(),
+                   py: ti.i32, px: ti.i32):
+    """`mark_mesh_edges` for pixel (px, py)."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    k = mesh_key[py, px]
+    is_edge = 0
+    for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
+        k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
+        if (k == empty_key()) != (k2 == empty_key()):
+            is_edge = 1
+        elif k != empty_key():
+            z1, z2 = key_depth(k), key_depth(k2)
+            if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
                 is_edge = 1
-            elif k != empty_key():
-                z1, z2 = key_depth(k), key_depth(k2)
-                if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
-                    is_edge = 1
-                elif part[key_prim(k)] != part[key_prim(k2)]:
-                    is_edge = 1
-        slot = -1
-        if is_edge:
-            s = ti.atomic_add(count[0], 1)
-            if s < capacity:
-                slot = s
-                for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
-                    sub_key[s, j] = empty_key()
-        edge_index[py, px] = slot
+            elif part[key_prim(k)] != part[key_prim(k2)]:
+                is_edge = 1
+    slot = -1
+    if is_edge:
+        s = ti.atomic_add(count[0], 1)
+        if s < capacity:
+            slot = s
+            for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                sub_key[s, j] = empty_key()
+    edge_index[py, px] = slot
 
 
 @ti.func
@@ -426,20 +446,33 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
     (H, W), and encode the image (H, W) as 8-bit sRGB packed R | G << 8 | B << 16 (a
     little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
     faster than three bytes, `unpack_image`); table: `srgb_table()`. One thread per output
-    pixel."""
-    for py, px in out_alpha:
-        c = vec3f(0.0, 0.0, 0.0)
-        a = f32(0.0)
-        for dy, dx in ti.ndrange(scale, scale):
-            c += rgb[py * scale + dy, px * scale + dx]
-            a += alpha[py * scale + dy, px * scale + dx]
-        norm = f32(1.0) / ti.cast(scale * scale, f32)
-        out_rgb[py, px] = c * norm
-        out_alpha[py, px] = a * norm
-        word = ti.u32(0)
-        for ch in ti.static(range(3)):
-            word |= encode_srgb_table(c[ch] * norm, table) << ti.u32(8 * ch)
-        image[py, px] = word
+    pixel (CPU: per row)."""
+    if ti.static(on_cpu()):
+        for py in range(out_alpha.shape[0]):
+            for px in range(out_alpha.shape[1]):
+                finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
+    else:
+        for py, px in out_alpha:
+            finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
+
+
+@ti.func
+def finish_pixel(scale: ti.i32, rgb: ti.template(), alpha: ti.template(), out_rgb: ti.template(),
+                 out_alpha: ti.template(), image: ti.template(), table: ti.template(), py: ti.i32,
+                 px: ti.i32):
+    """`finish` for output pixel (px, py)."""
+    c = vec3f(0.0, 0.0, 0.0)
+    a = f32(0.0)
+    for dy, dx in ti.ndrange(scale, scale):
+        c += rgb[py * scale + dy, px * scale + dx]
+        a += alpha[py * scale + dy, px * scale + dx]
+    norm = f32(1.0) / ti.cast(scale * scale, f32)
+    out_rgb[py, px] = c * norm
+    out_alpha[py, px] = a * norm
+    word = ti.u32(0)
+    for ch in ti.static(range(3)):
+        word |= encode_srgb_table(c[ch] * norm, table) << ti.u32(8 * ch)
+    image[py, px] = word
 
 
 def unpack_image(packed) -> np.ndarray:

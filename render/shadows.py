@@ -19,7 +19,7 @@ import taichi as ti
 from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
-from .runtime import buffer, chunks, upload
+from .runtime import buffer, chunks, on_cpu, upload
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -89,12 +89,24 @@ def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
                  fixed: ti.types.ndarray(dtype=ti.i64, ndim=3), full: ti.i32):
     """z0 = empty (no hair in front); full: also opacity and the fixed-point slabs = 0
     (otherwise `accumulate_slabs` of the last map left fixed at 0 and overwrites opacity)."""
-    for i, j in z0:
-        z0[i, j] = f32(3.0e38)
-        if full:
-            for k in range(opacity.shape[2]):
-                opacity[i, j, k] = f32(0.0)
-                fixed[k, i, j] = 0
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(z0.shape[0]):
+            for j in range(z0.shape[1]):
+                clear_texel(z0, opacity, fixed, full, i, j)
+    else:
+        for i, j in z0:
+            clear_texel(z0, opacity, fixed, full, i, j)
+
+
+@ti.func
+def clear_texel(z0: ti.template(), opacity: ti.template(), fixed: ti.template(), full: ti.i32,
+                i: ti.i32, j: ti.i32):
+    """`clear_shadow` for texel (i, j)."""
+    z0[i, j] = f32(3.0e38)
+    if full:
+        for k in range(opacity.shape[2]):
+            opacity[i, j, k] = f32(0.0)
+            fixed[k, i, j] = 0
 
 
 @ti.func
@@ -187,12 +199,23 @@ def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
     """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end
     (from the fixed-point sums), and set the sums back to 0 for the next map: zeroing them
     here, while their cache lines are loaded, spares the next map a pass over them."""
-    for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
-        total = ti.i64(0)
-        for k in range(opacity.shape[2]):
-            total += fixed[k, i, j]
-            fixed[k, i, j] = 0
-            opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(opacity.shape[0]):
+            for j in range(opacity.shape[1]):
+                accumulate_texel(fixed, opacity, i, j)
+    else:
+        for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
+            accumulate_texel(fixed, opacity, i, j)
+
+
+@ti.func
+def accumulate_texel(fixed: ti.template(), opacity: ti.template(), i: ti.i32, j: ti.i32):
+    """`accumulate_slabs` for texel (i, j)."""
+    total = ti.i64(0)
+    for k in range(opacity.shape[2]):
+        total += fixed[k, i, j]
+        fixed[k, i, j] = 0
+        opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
 
 
 @ti.func
