@@ -440,12 +440,13 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            alpha: ti.types.ndarray(dtype=f32, ndim=2),
            out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
-           image: ti.types.ndarray(dtype=ti.u32, ndim=2),
+           image: ti.types.ndarray(dtype=ti.u32, ndim=1),
            table: ti.types.ndarray(dtype=f32, ndim=1)):
     """Box-filter scale x scale blocks of the supersampled rgb/alpha (H*s, W*s) down to
-    (H, W), and encode the image (H, W) as 8-bit sRGB packed R | G << 8 | B << 16 (a
-    little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
-    faster than three bytes, `unpack_image`); table: `srgb_table()`. One thread per output
+    (H, W), and encode the image (H W,), row-major, as 8-bit sRGB packed R | G << 8 | B << 16
+    (a little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
+    faster than three bytes, and a 1-D array faster than a 2-D one, `unpack_image`); table:
+    `srgb_table()`. One thread per output
     pixel (CPU: per row)."""
     if ti.static(on_cpu()):
         for py in range(out_alpha.shape[0]):
@@ -472,10 +473,10 @@ def finish_pixel(scale: ti.i32, rgb: ti.template(), alpha: ti.template(), out_rg
     word = ti.u32(0)
     for ch in ti.static(range(3)):
         word |= encode_srgb_table(c[ch] * norm, table) << ti.u32(8 * ch)
-    image[py, px] = word
+    image[py * out_alpha.shape[1] + px] = word
 
 
-def unpack_image(packed) -> np.ndarray:
-    """(H, W, 3) uint8 sRGB from `finish`'s packed (H, W) image (a device ndarray)."""
+def unpack_image(packed, height: int, width: int) -> np.ndarray:
+    """(H, W, 3) uint8 sRGB from `finish`'s packed (H W,) image (a device ndarray)."""
     words = np.ascontiguousarray(packed.to_numpy(), dtype="<u4")
-    return words.view(np.uint8).reshape(*words.shape, 4)[..., :3].copy()
+    return words.view(np.uint8).reshape(height, width, 4)[..., :3].copy()
