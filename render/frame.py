@@ -22,7 +22,7 @@ from .colour import srgb_colour, srgb_to_linear
 from .geometry import Hair, Mesh, merge_meshes
 from .raster import (EDGE_SAMPLES, clear_frame, clear_keys_2d, composite, finish,
                      mark_mesh_edges, raster_edge_samples, raster_hair, raster_triangles,
-                     unpack_image, vec3i)
+                     srgb_table, unpack_image, vec3i)
 from .runtime import buffer, chunks, ensure_init, upload
 from .bundles import HairArgs, LightSetArgs, MeshArgs, MeshPixelArgs
 from .fibre_lobes import table_args
@@ -237,7 +237,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
 class _Buffers(NamedTuple):
     """A rendered frame's device buffers at the camera's resolution."""
 
-    image: object
+    image: object   # (H W,) packed sRGB words, row-major (`raster.finish`)
     rgb: object
     alpha: object
     mesh_key: object  # (H s, W s) the nearest mesh fragment per sample (raster.empty_key: none)
@@ -264,7 +264,7 @@ def render_buffers(camera: Camera, *, hair: Hair | None = None, meshes=(), light
     mesh = on_mesh.mean(axis=(1, 3), dtype=np.float32)
     # hair over meshes: a pixel is uncovered where both the meshes and the hair let it through
     coverage = 1.0 - (1.0 - mesh) * (1.0 - np.clip(alpha, 0.0, 1.0))
-    return {"image": unpack_image(b.image), "rgb": b.rgb.to_numpy(), "alpha": alpha,
+    return {"image": unpack_image(b.image, camera.height, camera.width), "rgb": b.rgb.to_numpy(), "alpha": alpha,
             "coverage": coverage.astype(np.float32)}
 
 
@@ -348,8 +348,8 @@ def _render(camera, hair, meshes, lights, lighting, background, settings,
                   rgb_s, alpha_s)
     out_rgb = buffer("out_rgb", vec3f, (camera.height, camera.width), 3)
     out_alpha = buffer("out_alpha", f32, (camera.height, camera.width))
-    image = buffer("image", ti.u32, (camera.height, camera.width))
-    finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image)
+    image = buffer("image", ti.u32, (camera.height * camera.width,))
+    finish(s, rgb_s, alpha_s, out_rgb, out_alpha, image, srgb_table())
     return _Buffers(image=image, rgb=out_rgb, alpha=out_alpha, mesh_key=mesh_key)
 
 
@@ -359,8 +359,8 @@ def render_frame(camera: Camera, *, hair: Hair | None = None, meshes=(), lights=
                  backdrop: Backdrop | None = None) -> np.ndarray:
     """Render one frame: (camera.height, camera.width, 3) uint8 sRGB. See `render_buffers`
     (this reads back the image only)."""
-    return unpack_image(_render(camera, hair, meshes, lights, lighting, background, settings,
-                                backdrop).image)
+    image = _render(camera, hair, meshes, lights, lighting, background, settings, backdrop).image
+    return unpack_image(image, camera.height, camera.width)
 
 
 def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),

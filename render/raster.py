@@ -25,6 +25,7 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
+from .runtime import on_cpu
 
 vec2f = ti.types.vector(2, ti.f32)
 vec3i = ti.types.vector(3, ti.i32)
@@ -66,8 +67,13 @@ def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
 
 @ti.kernel
 def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
-    for i, j in key:
-        key[i, j] = empty_key()
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(key.shape[0]):
+            for j in range(key.shape[1]):
+                key[i, j] = empty_key()
+    else:
+        for i, j in key:
+            key[i, j] = empty_key()
 
 
 @ti.func
@@ -138,29 +144,43 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
     8 neighbours differs in showing a mesh, in depth by over 2 %, or in which mesh it shows
     (part (F,): each face's mesh; where a neck meets a body, depth is continuous but the
     surfaces cross); -1 elsewhere (and past `capacity` slots). The slot's EDGE_SAMPLES^2 keys
-    are cleared; count[0]: slots taken (start at 0). One thread per pixel."""
+    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row)."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
-    for py, px in mesh_key:
-        k = mesh_key[py, px]
-        is_edge = 0
-        for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
-            k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
-            if (k == empty_key()) != (k2 == empty_key()):
+    if ti.static(on_cpu()):
+        for py in range(height):
+            for px in range(width):
+                mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+    else:
+        for py, px in mesh_key:
+            mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+
+
+@ti.func
+def mark_mesh_edge(mesh_key: ti.template(), capacity: ti.i32, count: ti.template(),
+                   edge_index: ti.template(), sub_key: ti.template(), part: ti.template(),
+                   py: ti.i32, px: ti.i32):
+    """`mark_mesh_edges` for pixel (px, py)."""
+    height, width = mesh_key.shape[0], mesh_key.shape[1]
+    k = mesh_key[py, px]
+    is_edge = 0
+    for dy, dx in ti.static(ti.ndrange((-1, 2), (-1, 2))):
+        k2 = mesh_key[ti.math.clamp(py + dy, 0, height - 1), ti.math.clamp(px + dx, 0, width - 1)]
+        if (k == empty_key()) != (k2 == empty_key()):
+            is_edge = 1
+        elif k != empty_key():
+            z1, z2 = key_depth(k), key_depth(k2)
+            if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
                 is_edge = 1
-            elif k != empty_key():
-                z1, z2 = key_depth(k), key_depth(k2)
-                if ti.max(z1, z2) > ti.min(z1, z2) * f32(1.02):
-                    is_edge = 1
-                elif part[key_prim(k)] != part[key_prim(k2)]:
-                    is_edge = 1
-        slot = -1
-        if is_edge:
-            s = ti.atomic_add(count[0], 1)
-            if s < capacity:
-                slot = s
-                for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
-                    sub_key[s, j] = empty_key()
-        edge_index[py, px] = slot
+            elif part[key_prim(k)] != part[key_prim(k2)]:
+                is_edge = 1
+    slot = -1
+    if is_edge:
+        s = ti.atomic_add(count[0], 1)
+        if s < capacity:
+            slot = s
+            for j in ti.static(range(EDGE_SAMPLES * EDGE_SAMPLES)):
+                sub_key[s, j] = empty_key()
+    edge_index[py, px] = slot
 
 
 @ti.func
@@ -376,31 +396,87 @@ def encode_srgb(linear: f32) -> ti.u8:
 
 
 @ti.kernel
+def srgb_thresholds(table: ti.types.ndarray(dtype=f32, ndim=1)):
+    """table[k] = the least float32 c in [0, 1] that `encode_srgb` encodes as k or more, for
+    k in 1..255 (table[0] = -inf): found by bisection on the bits of c (for c >= 0 their
+    integer order is c's order). One thread per level."""
+    for k in range(256):
+        lo, hi = 0, 0x3F800000   # the bits of 0.0 and 1.0
+        while lo < hi:
+            mid = lo + (hi - lo) // 2
+            if ti.cast(encode_srgb(ti.bit_cast(mid, f32)), ti.i32) >= k:
+                hi = mid
+            else:
+                lo = mid + 1
+        table[k] = ti.select(k == 0, f32(-3.0e38), ti.bit_cast(lo, f32))
+
+
+@ti.func
+def encode_srgb_table(linear: f32, table: ti.template()) -> ti.u32:
+    """`encode_srgb` by binary search in its thresholds (`srgb_thresholds`): eight compares
+    instead of libm's log and exp (calls); the same level for every input, as encode_srgb
+    rises monotonically (a test checks both on millions of values)."""
+    level = 0
+    for b in ti.static(range(7, -1, -1)):
+        if linear >= table[level + (1 << b)]:
+            level += 1 << b
+    return ti.cast(level, ti.u32)
+
+
+_srgb_table: list = []
+
+
+def srgb_table() -> ti.Ndarray:
+    """The thresholds of `encode_srgb` (256,) float32 on the device, computed once."""
+    if not _srgb_table:
+        table = ti.ndarray(f32, (256,))
+        srgb_thresholds(table)
+        _srgb_table.append(table)
+    return _srgb_table[0]
+
+
+@ti.kernel
 def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            alpha: ti.types.ndarray(dtype=f32, ndim=2),
            out_rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
            out_alpha: ti.types.ndarray(dtype=f32, ndim=2),
-           image: ti.types.ndarray(dtype=ti.u32, ndim=2)):
+           image: ti.types.ndarray(dtype=ti.u32, ndim=1),
+           table: ti.types.ndarray(dtype=f32, ndim=1)):
     """Box-filter scale x scale blocks of the supersampled rgb/alpha (H*s, W*s) down to
-    (H, W), and encode the image (H, W) as 8-bit sRGB packed R | G << 8 | B << 16 (a
-    little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
-    faster than three bytes, `unpack_image`). One thread per output pixel."""
-    for py, px in out_alpha:
-        c = vec3f(0.0, 0.0, 0.0)
-        a = f32(0.0)
-        for dy, dx in ti.ndrange(scale, scale):
-            c += rgb[py * scale + dy, px * scale + dx]
-            a += alpha[py * scale + dy, px * scale + dx]
-        norm = f32(1.0) / ti.cast(scale * scale, f32)
-        out_rgb[py, px] = c * norm
-        out_alpha[py, px] = a * norm
-        word = ti.u32(0)
-        for ch in ti.static(range(3)):
-            word |= ti.cast(encode_srgb(c[ch] * norm), ti.u32) << ti.u32(8 * ch)
-        image[py, px] = word
+    (H, W), and encode the image (H W,), row-major, as 8-bit sRGB packed R | G << 8 | B << 16
+    (a little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
+    faster than three bytes, and a 1-D array faster than a 2-D one, `unpack_image`); table:
+    `srgb_table()`. One thread per output
+    pixel (CPU: per row)."""
+    if ti.static(on_cpu()):
+        for py in range(out_alpha.shape[0]):
+            for px in range(out_alpha.shape[1]):
+                finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
+    else:
+        for py, px in out_alpha:
+            finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
 
 
-def unpack_image(packed) -> np.ndarray:
-    """(H, W, 3) uint8 sRGB from `finish`'s packed (H, W) image (a device ndarray)."""
+@ti.func
+def finish_pixel(scale: ti.i32, rgb: ti.template(), alpha: ti.template(), out_rgb: ti.template(),
+                 out_alpha: ti.template(), image: ti.template(), table: ti.template(), py: ti.i32,
+                 px: ti.i32):
+    """`finish` for output pixel (px, py)."""
+    c = vec3f(0.0, 0.0, 0.0)
+    a = f32(0.0)
+    for dy, dx in ti.ndrange(scale, scale):
+        c += rgb[py * scale + dy, px * scale + dx]
+        a += alpha[py * scale + dy, px * scale + dx]
+    norm = f32(1.0) / ti.cast(scale * scale, f32)
+    out_rgb[py, px] = c * norm
+    out_alpha[py, px] = a * norm
+    word = ti.u32(0)
+    for ch in ti.static(range(3)):
+        word |= encode_srgb_table(c[ch] * norm, table) << ti.u32(8 * ch)
+    image[py * out_alpha.shape[1] + px] = word
+
+
+def unpack_image(packed, height: int, width: int) -> np.ndarray:
+    """(H, W, 3) uint8 sRGB from `finish`'s packed (H W,) image (a device ndarray)."""
     words = np.ascontiguousarray(packed.to_numpy(), dtype="<u4")
-    return words.view(np.uint8).reshape(*words.shape, 4)[..., :3].copy()
+    return words.view(np.uint8).reshape(height, width, 4)[..., :3].copy()

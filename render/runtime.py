@@ -51,7 +51,12 @@ def ensure_init() -> None:
 
 
 def on_cpu() -> bool:
-    """True when Taichi runs on the CPU (x64 or arm64)."""
+    """True when Taichi runs on the CPU (x64 or arm64).
+
+    Kernels over an image or map test this in `ti.static` to loop over its rows in parallel
+    and along each row serially on the CPU: Taichi's 2-D loop (`for i, j in a`) decodes every
+    element's (i, j) with integer divisions, ~12 ns an element on the CPU, ten times a clear's
+    own work (512 x 512 int64 clear: 3.5 -> 0.37 ms). GPUs keep one thread per element."""
     return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
 
 

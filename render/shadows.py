@@ -19,12 +19,14 @@ import taichi as ti
 from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
-from .runtime import buffer, chunks, upload
+from .runtime import buffer, chunks, on_cpu, upload
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
 # 2^39 units (far more fibres than a head has) in an int64
 OPACITY_STEPS = 16777216.0
+
+_cleared: dict = {}   # map name -> its fixed-point slab buffer, known to be all 0 before a splat
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,9 +86,24 @@ class ShadowMap(NamedTuple):
 @ti.kernel
 def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
                  opacity: ti.types.ndarray(dtype=f32, ndim=3),
-                 fixed: ti.types.ndarray(dtype=ti.i64, ndim=3)):
-    for i, j in z0:
-        z0[i, j] = f32(3.0e38)
+                 fixed: ti.types.ndarray(dtype=ti.i64, ndim=3), full: ti.i32):
+    """z0 = empty (no hair in front); full: also opacity and the fixed-point slabs = 0
+    (otherwise `accumulate_slabs` of the last map left fixed at 0 and overwrites opacity)."""
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(z0.shape[0]):
+            for j in range(z0.shape[1]):
+                clear_texel(z0, opacity, fixed, full, i, j)
+    else:
+        for i, j in z0:
+            clear_texel(z0, opacity, fixed, full, i, j)
+
+
+@ti.func
+def clear_texel(z0: ti.template(), opacity: ti.template(), fixed: ti.template(), full: ti.i32,
+                i: ti.i32, j: ti.i32):
+    """`clear_shadow` for texel (i, j)."""
+    z0[i, j] = f32(3.0e38)
+    if full:
         for k in range(opacity.shape[2]):
             opacity[i, j, k] = f32(0.0)
             fixed[k, i, j] = 0
@@ -180,12 +197,25 @@ def splat_hair_opacity(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
 def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
                      opacity: ti.types.ndarray(dtype=f32, ndim=3)):
     """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end
-    (from the fixed-point sums)."""
-    for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
-        total = ti.i64(0)
-        for k in range(opacity.shape[2]):
-            total += fixed[k, i, j]
-            opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
+    (from the fixed-point sums), and set the sums back to 0 for the next map: zeroing them
+    here, while their cache lines are loaded, spares the next map a pass over them."""
+    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
+        for i in range(opacity.shape[0]):
+            for j in range(opacity.shape[1]):
+                accumulate_texel(fixed, opacity, i, j)
+    else:
+        for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
+            accumulate_texel(fixed, opacity, i, j)
+
+
+@ti.func
+def accumulate_texel(fixed: ti.template(), opacity: ti.template(), i: ti.i32, j: ti.i32):
+    """`accumulate_slabs` for texel (i, j)."""
+    total = ti.i64(0)
+    for k in range(opacity.shape[2]):
+        total += fixed[k, i, j]
+        fixed[k, i, j] = 0
+        opacity[i, j, k] = ti.cast(total, f32) / f32(OPACITY_STEPS)
 
 
 @ti.func
@@ -354,7 +384,14 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
     # cache line of the sample before (texel-major, each sample would miss on a line of its own)
     fixed = buffer(f"{name}_opacity_fixed", ti.i64, (layers, r, r))
     mesh_key = buffer(f"{name}_mesh_key", ti.i64, (r, r))
-    clear_shadow(z0, opacity, fixed)
+    # a map with hair leaves its slab sums at 0 and fills all of opacity (`accumulate_slabs`):
+    # only new buffers and maps without hair need clearing in full (the 24 MB of a 512^2 x 8
+    # map cost a pass of ~10 ms per light on the CPU)
+    splats = enabled and hair is not None
+    clean = _cleared.pop(name, None) is fixed
+    clear_shadow(z0, opacity, fixed, int(not (splats and clean)))
+    if not splats:
+        _cleared[name] = fixed
     clear_keys_2d(mesh_key)
     if not enabled:
         bounds = upload(f"{name}_bounds", settings.bounds(1.0), f32)
@@ -378,6 +415,7 @@ def build_shadow_map(settings: ShadowSettings, to_light, hair: dict | None,
         splat_hair_opacity(hair["n_segments"], hair["seg"], ls, hair["width"], hair["opacity"],
                            light.texel_size, z0, bounds, fixed)
         accumulate_slabs(fixed, opacity)
+        _cleared[name] = fixed
     params = np.array([1.0, settings.density, 2.0 * light.texel_size, light.texel_size],
                       dtype=np.float32)
     return ShadowMap(view, proj, z0, opacity, bounds, mesh_key, params)
