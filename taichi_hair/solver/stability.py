@@ -14,6 +14,16 @@ DEFAULT_STABILITY_FACTOR = 0.5
 CONTACT_STABILITY_FACTOR = 0.4
 
 
+# A grab pulls every node within its radius toward one point and gathers the strands it holds
+# into a ball (scenes/touch_comb.py: a 25 cm strand balled within 1.3 cm of the grab point,
+# turning 60 to 100 degrees at every node, its nodes jittering at 2-3 m/s), which the fast
+# projection fails to hold well inside the spring's own bound 2 c sqrt(m / k). Measured on
+# touch_comb (c = 0.5, grab 0.01 N/m, its 1.71 ms spring bound), two grooms (equal edges, and
+# equal arcs with edges up to 20 % short): diverged at 0.83, 0.89 and 1.19 ms, held 3 s at
+# 0.60, 0.69, 0.76, 0.89 and 1.19 ms; a grab's bound is this fraction of the spring's (0.60 ms).
+GRAB_GATHER_FACTOR = 0.35
+
+
 def default_stability_factor(strand_contact: bool) -> float:
     """The explicit bound's factor a scene gets unless it names one: 0.5, or 0.4 with strand
     contact (`Simulator(strand_contact=...)`)."""
@@ -170,7 +180,8 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
                 kmoch: bool, measured: dict | None = None) -> StabilityBound:
     """The tightest of the scene's bounds: bending (with drag; tightened under Kmoch's rule),
     the wind (air_speed [m/s], the fastest air; each strand's over its own shortest edge), each
-    grab spring (grabs: (name, stiffness [N/m], lightest free node's mass [kg])); its cause
+    grab spring (grabs: (name, stiffness [N/m], lightest free node's mass [kg]); GRAB_GATHER_FACTOR
+    of the spring's own bound); its cause
     names the parameter that sets it. Drag is named when it at least halves the bending bound.
     Only the bound itself is computed here; the bending cause's comparison bounds (without drag,
     without Kmoch's factor) are computed when a refusal words it."""
@@ -192,8 +203,10 @@ def scene_bound(groom, materials, *, drag: float, air_speed: float, grabs=(), fa
                   StabilityBound(float(wind.min()),
                                  f"the wind (fastest air {air_speed:.3g} m/s must not move a node more "
                                  f"than a segment per step)")]
-    # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k)
-    candidates += [StabilityBound(2.0 * factor * math.sqrt(mass / k), f"{name}.stiffness = {k:g} N/m")
+    # a grab spring k on the lightest free node m: h < 2 factor sqrt(m / k), and a fraction of
+    # that for the ball it gathers the strands into
+    candidates += [StabilityBound(GRAB_GATHER_FACTOR * 2.0 * factor * math.sqrt(mass / k),
+                                  f"{name}.stiffness = {k:g} N/m (a grab gathers strands into a ball)")
                    for name, k, mass in grabs]
     tightest = min(candidates, key=lambda b: b.dt)
     shared = min([math.inf] + [b.dt for b in candidates[2:]])  # the bounds every strand shares
