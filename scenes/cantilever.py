@@ -24,4 +24,4 @@ def shot() -> th.Shot:
     # a fixed side view holding the rod level at the start and hanging at the end: a horizontal
     # rod fills the frame's width, a hanging one its height
     return th.Shot(frames=48, fps=24, dt=1e-3, hair_width=2e-3, hair_colour=(0.6, 0.5, 0.4),
-                eye=(0.15, 0.49, -0.12), target=(0.15, 0.0, -0.145), fov_y=35.0)
+                eye=(0.15, 0.48, -0.097), target=(0.15, 0.0, -0.145), fov_y=35.0)

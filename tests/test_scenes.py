@@ -42,6 +42,22 @@ def test_scene_runs_a_few_frames_without_a_warning(scene, tmp_path):
     assert "median ms per frame" in result.stdout
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["cantilever.py", "loose_curls.py"])
+def test_scene_frames_its_subject_over_the_whole_shot(scene, tmp_path):
+    """The scenes whose camera is set by hand keep their subject filling at least 60 % of the
+    frame (height, or width for a level rod) in every frame of their whole shot, off the top,
+    left and right borders (render.contact.framing on the coverage masks)."""
+    from render.contact import framing
+    out = tmp_path / "out"
+    result = run([str(ROOT / "scenes" / scene), "--out", str(out), "--width", "320", "--height", "240",
+                  "--masks", "--dense", "300"], cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    measure = framing(sorted((out / "frames").glob("frame_*.png")))
+    print(f"\n{scene}: {measure}")
+    assert measure["fills"] >= 0.6 and measure["cut"] == 0, measure
+
+
 def test_killed_run_resumes_and_matches_an_uninterrupted_run(tmp_path):
     scene = str(ROOT / "scenes" / "cantilever.py")
     args = ["--frames", "60", "--width", "64", "--height", "48"]
