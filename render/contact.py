@@ -97,8 +97,8 @@ def framing(frames) -> dict:
 def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
     """Write the sheet as a PNG; returns {"path", "rows": [folder names], "skipped": [...],
     "fractions": [each row's smallest subject height fraction over all its frames],
-    "fills": [each row's smallest max(height, width) fraction], "cut": [frames touching the
-    border per row]} (framing)."""
+    "fills": [each row's smallest max(height, width) fraction], "cut": [each row's frames
+    touching the top, left or right border]} (framing)."""
     rows, names, skipped, measures = [], [], [], []
     for folder in map(Path, folders):
         frames = _frames(folder)
@@ -115,8 +115,8 @@ def contact_sheet(folders, out_path, thumb: int = 320) -> dict:
         row = np.concatenate(cells, axis=1)
         label = np.full((LABEL_H, row.shape[1], 3), 255, np.uint8)
         draw_text(label, 4, 4, f"{folder.name}  frames {', '.join(frames[k].stem[6:] for k in picks)}"
-                               f"  height {100 * measure['height']:.0f} %  fills {100 * measure['fills']:.0f} %"
-                               f"  cut {measure['cut']}")
+                               f"  height {100 * measure['height']:.0f} %"
+                               f"  fills {100 * measure['fills']:.0f} %  cut {measure['cut']}")
         rows.append(np.concatenate([label, row]))
         names.append(folder.name)
         measures.append(measure)
