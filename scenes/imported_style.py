@@ -40,10 +40,8 @@ def build() -> th.Scene:
 
 
 def interpolator(scene, simulator):
-    """Dense hair: the imported strands themselves, moved by their guides."""
-    selection = _selection()
-    _, interp = th.animate_style(selection, th.Material(), dt=1e-3)
-    return interp
+    """Dense hair: the imported strands themselves, turned with their guides' material frames."""
+    return th.style_interpolator(_selection(), simulator)
 
 
 def shot() -> th.Shot:

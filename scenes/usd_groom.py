@@ -46,10 +46,9 @@ def build() -> th.Scene:
 
 
 def interpolator(scene, simulator):
-    """Dense hair: the USD groom's own strands, moved by their guides."""
+    """Dense hair: the USD groom's own strands, turned with their guides' material frames."""
     selection, _ = _selection()
-    _, interp = th.animate_style(selection, th.Material(), dt=1e-3)
-    return interp
+    return th.style_interpolator(selection, simulator)
 
 
 def shot() -> th.Shot:

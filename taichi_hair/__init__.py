@@ -18,7 +18,7 @@ from .app.runner import Shot
 from .world.colliders import Capsule, Ellipsoid, MeshCollider, Plane, Sphere
 from .world.forces import Grab, Hand, Wind
 from .rods.groom import Groom
-from .hair.guides import GuideSelection, animate_style, pick_guides
+from .hair.guides import GuideSelection, animate_style, pick_guides, style_interpolator
 from .hair.hairfile import HairFile, HairFileError, read_hair, read_obj_polylines, write_hair, write_obj_polylines
 from .world.headmesh import HeadModel, default_head, read_obj_mesh, write_obj_mesh
 from .hair.interpolate import Interpolator
@@ -45,5 +45,5 @@ __all__ = ["init", "Shot", "Groom", "Material", "Simulator", "SimulationDiverged
            "HeadModel", "default_head", "read_obj_mesh", "write_obj_mesh", "SignedDistanceGrid",
            "sample_scalp", "scalp_groom", "Interpolator", "HairFile", "HairFileError", "read_hair",
            "write_hair", "read_obj_polylines", "write_obj_polylines", "GuideSelection",
-           "pick_guides", "animate_style", "sag_free", "SagFreeReport", "read_usd_curves",
+           "pick_guides", "animate_style", "style_interpolator", "sag_free", "SagFreeReport", "read_usd_curves",
            "write_usd_curves", "UsdCurvesWriter", "UsdCurves", "Differentiable", "losses"]

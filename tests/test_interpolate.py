@@ -213,6 +213,31 @@ def test_rest_shapes_follow_guides_that_all_bend_alike_and_keep_their_edge_lengt
     assert np.abs(out - shapes).max() > 0.01  # not vacuous: the strands moved
 
 
+@pytest.mark.parametrize("kwargs", MODES, ids=lambda k: f"{k['mode']}-{k.get('blend', '')}")
+def test_guides_turned_rigidly_apart_turn_curled_strands_rigidly(kwargs):
+    """Straight guides, each turned about its root by a rotation of its own (up to 1.2 rad about
+    random axes): each guide's edge rotations are one rotation, so the blend of a strand's guides
+    is one rotation for all its edges, and every tightly curled dense strand (5 mm curls) turns
+    rigidly: the best rigid fit of its rest shape (Kabsch) leaves nothing. A blend of the turned
+    edges instead (a mean of rotation matrices) squashes the curls."""
+    roots, normals = sample_scalp_roots(25, max_polar_deg=50.0)
+    dense = random_cap(60, max_polar_deg=45.0)
+    straight = roots[:, None] + np.linspace(0.0, 0.2, 24)[None, :, None] * normals[:, None]
+    curls = helices(dense, dense / np.linalg.norm(dense, axis=1, keepdims=True), n_nodes=24,
+                    radius=0.005, pitch=0.01, phases=np.random.default_rng(3).uniform(0, 6, 60))
+    interp = build(kwargs, roots, normals, dense, 24, rest_guides=straight, rest_shapes=curls)
+    rng = np.random.default_rng(4)
+    turns = [rotation_matrix(rng.normal(size=3), rng.uniform(0.4, 1.2)) for _ in range(25)]
+    turned = np.stack([r + (g - r) @ rot.T for r, g, rot in zip(roots, straight, turns)])
+    out = interp.interpolate(turned)
+    for got, rest in zip(out, curls):
+        a, b = rest - rest.mean(0), got - got.mean(0)
+        u, _, vt = np.linalg.svd(b.T @ a)
+        fit = a @ (u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt).T
+        assert np.abs(fit - b).max() < 1e-9, np.abs(fit - b).max()
+    assert np.abs(out - curls).max() > 0.01  # not vacuous: the strands turned
+
+
 def test_rest_edges_turn_with_the_guide_they_ride_on():
     """Straight guides along +z turned 90 degrees at the root to run along +x (a rotation about
     y). A dense strand rooted 1 mm x 1 mm from guide 0 whose first rest edge steps 4 mm along

@@ -133,14 +133,14 @@ def _prepared_run(job: RenderJob):
     return _prepared[key]
 
 
-def render_task(job: RenderJob, frame: int, guides, pose) -> dict:
+def render_task(job: RenderJob, frame: int, guides, pose, directors=None) -> dict:
     """On a worker: interpolate and render one frame; its PNG bytes and the wall times [s]."""
     from .runner import render_frame
     run = _prepared_run(job)
     times = {"interpolation": [], "rendering": []}
     with tempfile.TemporaryDirectory(prefix="taichi_hair_frame_") as tmp:
         path = Path(tmp) / f"frame_{frame:05d}.png"
-        render_frame(path, frame, guides, pose, run, times)
+        render_frame(path, frame, guides, pose, directors, run, times)
         png = path.read_bytes()
     return {"frame": frame, "png": png, "interpolation": times["interpolation"][0],
             "rendering": times["rendering"][0], "worker_pid": os.getpid()}
@@ -182,8 +182,8 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
     token, tasks, written = uuid.uuid4().hex[:8], distributed.as_completed(), []
     times = {"simulation": [], "interpolation": [], "rendering": []}
 
-    def submit(frame, guides, pose):
-        tasks.add(client.submit(render_task, job, frame, guides, pose, pure=False,
+    def submit(frame, guides, pose, directors):
+        tasks.add(client.submit(render_task, job, frame, guides, pose, directors, pure=False,
                                 key=f"taichi-hair-frame-{token}-{frame:05d}"))
 
     def write(future):
@@ -199,12 +199,14 @@ def run_scene(client, script, out_dir, *, frames=None, resume=False, progress=Tr
         for frame in pending:
             submit(frame, *load_guides(out, frame))
         for frame in range(done, total):
-            guides, pose = simulate_frame(sim, shot, times)
-            save_guides(out, frame, guides, pose)
+            # the workers' interpolators may turn dense edges with the guides' material frames;
+            # this process builds none to ask, so every frame carries the directors
+            guides, pose, directors = simulate_frame(sim, shot, times, directors=True)
+            save_guides(out, frame, guides, pose, directors)
             if usd_writer is not None:
                 write_usd_frame(usd_writer, frame, shot, sim, guides, None, pose)
             checkpoint(out, sim, shot, frame + 1)
-            submit(frame, guides, pose)
+            submit(frame, guides, pose, directors)
             while tasks.has_ready():
                 write(next(tasks))
         for future in tasks:
@@ -229,18 +231,18 @@ def bench_rendering(script, *, frames: int = 48, workers: int = 2, rounds: int =
     drift in the machine's load), each side warmed up first (Taichi start-up and compiling
     excluded). Returns the wall times [s] per round, their ratios and the median ratio."""
     import statistics
-    from .runner import prepare_run, render_frame, simulate_frame
+    from .runner import needs_directors, prepare_run, render_frame, simulate_frame
     run = prepare_run(script, overrides=overrides)
     times = {"simulation": [], "interpolation": [], "rendering": []}
-    shot_frames = [(k, *simulate_frame(run.sim, run.shot, times)) for k in range(frames)]
+    shot_frames = [(k, *simulate_frame(run.sim, run.shot, times, needs_directors(run))) for k in range(frames)]
     serial, spread = [], []
     with connect(workers=workers) as client, tempfile.TemporaryDirectory(prefix="taichi_hair_bench_") as tmp:
         render_frame(Path(tmp) / "warm.png", *shot_frames[0], run, times)
         warm_up(client, script, shot_frames[0], overrides=overrides)
         for r in range(rounds):
             start = time.perf_counter()
-            for k, guides, pose in shot_frames:
-                render_frame(Path(tmp) / f"frame_{k:05d}.png", k, guides, pose, run, times)
+            for k, guides, pose, directors in shot_frames:
+                render_frame(Path(tmp) / f"frame_{k:05d}.png", k, guides, pose, directors, run, times)
             serial.append(time.perf_counter() - start)
             spread.append(time_rendering(client, script, shot_frames, overrides=overrides))
             if log:

@@ -36,21 +36,24 @@ def guides_path(out, frame) -> Path:
     return Path(out) / GUIDES_DIR / f"frame_{frame:05d}.npz"
 
 
-def save_guides(out, frame, guides, pose) -> None:
-    """Write a simulated frame's guides [S, N, 3] m and head pose (R [3, 3], t [3] m) to
+def save_guides(out, frame, guides, pose, directors=None) -> None:
+    """Write a simulated frame's guides [S, N, 3] m, head pose (R [3, 3], t [3] m) and, when
+    not None, the guides' material directors [S, N-1, 3] to
     guides/frame_NNNNN.npz atomically (temporary file, then rename): what a cluster run renders
     from, kept until the frame's PNG exists, so --resume can render it."""
     path = guides_path(out, frame)
     path.parent.mkdir(exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, guides=guides, rotation=pose[0], translation=pose[1])
+    extra = {} if directors is None else {"directors": directors}
+    np.savez(tmp, guides=guides, rotation=pose[0], translation=pose[1], **extra)
     os.replace(tmp, path)
 
 
 def load_guides(out, frame) -> tuple:
-    """(guides [S, N, 3], (R, t)) saved by `save_guides`."""
+    """(guides [S, N, 3], (R, t), directors [S, N-1, 3] or None) saved by `save_guides`."""
     with np.load(guides_path(out, frame)) as data:
-        return data["guides"], (data["rotation"], data["translation"])
+        directors = data["directors"] if "directors" in data.files else None
+        return data["guides"], (data["rotation"], data["translation"]), directors
 
 
 def remove_guides(out, frame) -> None:

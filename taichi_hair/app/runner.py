@@ -355,15 +355,14 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
     times = {"simulation": [], "interpolation": [], "rendering": []}
     with ProgressBar(total, f"{Path(script).stem}", enabled=progress, done=done - len(pending)) as bar:
         for frame in pending:
-            guides, pose = load_guides(out, frame)
-            render_frame(frame_path(out, frame), frame, guides, pose, run, times)
+            render_frame(frame_path(out, frame), frame, *load_guides(out, frame), run, times)
             remove_guides(out, frame)
             bar.update(1)
             if not progress:
                 log_frame(frame, total, (frame + 1) / shot.fps, times, simulated=False)
         for frame in range(done, total):
-            guides, pose = simulate_frame(sim, shot, times)
-            hair = render_frame(frame_path(out, frame), frame, guides, pose, run, times)
+            guides, pose, directors = simulate_frame(sim, shot, times, needs_directors(run))
+            hair = render_frame(frame_path(out, frame), frame, guides, pose, directors, run, times)
             if on_frame is not None:
                 on_frame(frame, sim)
             if usd_writer is not None:
@@ -379,23 +378,33 @@ def _run_locked(script, out, frames, resume, progress, overrides, usd, settings,
     return summary
 
 
-def simulate_frame(sim, shot, times) -> tuple:
-    """Step one frame; (guides [S, N, 3] m, head pose (R, t)). Appends the wall time to times."""
+def needs_directors(run: PreparedRun) -> bool:
+    """Whether the run's interpolator turns dense edges with the guides' material frames (an
+    imported style built by `style_interpolator`), so each frame must carry them."""
+    return bool(getattr(run.interp, "needs_directors", False))
+
+
+def simulate_frame(sim, shot, times, directors=False) -> tuple:
+    """Step one frame; (guides [S, N, 3] m, head pose (R, t), the guides' first material
+    directors [S, N-1, 3] when `directors`, else None). Appends the wall time to times."""
     start = time.perf_counter()
     sim.step(shot.steps_per_frame)
     guides = sim.positions()
+    m1 = sim.material_directors() if directors else None
     times["simulation"].append(time.perf_counter() - start)
     rotation, translation = sim.head_transform
-    return guides, (np.array(rotation), np.array(translation))  # copies: the simulator moves on
+    return guides, (np.array(rotation), np.array(translation)), m1  # copies: the simulator moves on
 
 
-def render_frame(path, frame, guides, pose, run: PreparedRun, times):
-    """Interpolate the dense hair of one frame from its guides and head pose and write its PNG at
-    `path`; returns the hair drawn. Appends interpolation and rendering wall times to times."""
+def render_frame(path, frame, guides, pose, directors, run: PreparedRun, times):
+    """Interpolate the dense hair of one frame from its guides, head pose and (None unless the
+    interpolator needs them) the guides' material directors, and write its PNG at `path`;
+    returns the hair drawn. Appends interpolation and rendering wall times to times."""
     start = time.perf_counter()
     rotation, translation = pose
     if run.interp is not None:
-        hair = run.interp.interpolate(guides, head_rotation=rotation, head_translation=translation)
+        hair = run.interp.interpolate(guides, head_rotation=rotation, head_translation=translation,
+                                      directors=directors)
     else:
         counts = run.sim.groom.node_counts
         hair = [guides[s, : counts[s]] for s in range(run.sim.n_strands)]

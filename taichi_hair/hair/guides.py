@@ -5,15 +5,17 @@
     for frame in range(n_frames):
         sim.step(k)
         R, t = motion(sim.time)
-        dense = interp.interpolate(sim.positions(), head_rotation=R, head_translation=t)
+        dense = interp.interpolate(sim.positions(), head_rotation=R, head_translation=t,
+                                   directors=sim.material_directors())
 
 `pick_guides` (numpy): every strand is resampled to a common node count by arc length, the
 roots are clustered by k-means, and each cluster's guide is the member strand whose root is
 nearest the cluster's mean root, a real strand of the style, so the simulated guides start
 with the style's own shapes. `animate_style` builds the simulator for the guides and an
 `Interpolator` that reproduces every imported strand at rest (see `Interpolator`'s
-rest_shapes): each dense edge turns as the same edge of its guides turns, so the strands keep
-their own shapes and lengths while they follow the guides.
+rest_shapes): each dense edge turns as the material frame of the same edge of its guides turns
+(`style_interpolator` builds it for a simulator of your own), so the strands keep their own
+shapes and lengths while they follow the guides.
 
 Positions are metres; arrays are [strand, node, xyz]; node 0 is the root.
 """
@@ -146,12 +148,33 @@ def animate_style(selection: GuideSelection, material, *, mode="blend", blend=0.
         raise ValueError(f"selection.guides cannot be simulated: {exc} (guide s is "
                          f"strands[guide_index[s]])") from None
     simulator = Simulator(groom, material, **simulator_options)
-    interpolator = Interpolator(selection.guide_roots, selection.guide_normals,
-                                selection.dense_roots, selection.n_nodes, mode=mode, blend=blend,
-                                head=head, head_margin=head_margin,
-                                rest_guides=selection.guides, rest_shapes=selection.dense,
-                                **(interpolator_options or {}))
-    return simulator, interpolator
+    return simulator, style_interpolator(selection, simulator, mode=mode, blend=blend, head=head,
+                                         head_margin=head_margin, **(interpolator_options or {}))
+
+
+def style_interpolator(selection: GuideSelection, simulator, *, mode="blend", blend=0.5, head=None,
+                       head_margin=0.002, **options) -> Interpolator:
+    """The `Interpolator` of an imported style for a simulator of the selection's guides, still
+    at rest (before its first step): its rest shapes are the imported strands and each dense
+    edge turns with the material frame of the same edge of its guides (rest_directors = the
+    simulator's directors now). Each frame then takes the simulator's directors:
+    `interp.interpolate(sim.positions(), R, t, directors=sim.material_directors())`.
+    mode, blend, head, head_margin and further options: see `Interpolator`."""
+    if not isinstance(selection, GuideSelection):
+        raise ValueError(f"selection must be a GuideSelection (from pick_guides), got "
+                         f"{type(selection).__name__}")
+    x = simulator.positions()
+    if x.shape != selection.guides.shape:
+        raise ValueError(f"simulator must hold the selection's {len(selection.guides)} guides of "
+                         f"{selection.n_nodes} nodes, got positions {list(x.shape)}")
+    gap = float(np.abs(x - selection.guides).max())
+    if gap > 1e-5:
+        raise ValueError(f"simulator must hold selection.guides at rest (before its first step); its "
+                         f"nodes are up to {gap:.3g} m away")
+    return Interpolator(selection.guide_roots, selection.guide_normals, selection.dense_roots,
+                        selection.n_nodes, mode=mode, blend=blend, head=head, head_margin=head_margin,
+                        rest_guides=selection.guides, rest_shapes=selection.dense,
+                        rest_directors=simulator.material_directors(), **options)
 
 
 def resample_strands(strands, n_nodes) -> np.ndarray:

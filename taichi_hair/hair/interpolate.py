@@ -15,8 +15,9 @@ type could be fixed at float32 before `taichi_hair.init` chose the precision):
      frame, so it follows the guide's bending and twist), the per-strand blend of both, and
      frizz growing toward the tip.
      With rest shapes (an imported style), `dense_from_edges` replaces it: one thread per
-     dense strand: each rest edge turned by the rotations of the same edge of its guides (the
-     clump guide and the triangle's three, blended) and laid end to end from the root.
+     dense strand: each rest edge turned by the blend of the rotations of the same edge of its
+     guides (the clump guide and the triangle's three; `guide_rotations` gives them as unit
+     quaternions, one thread per guide edge) and laid end to end from the root.
   3. `push_out_of_ellipsoid`: one thread per node: nodes closer to the head than a margin move
      out along the surface normal (only when the head is a sphere or ellipsoid).
 
@@ -30,9 +31,10 @@ import numpy as np
 import taichi as ti
 
 from ..runtime import ensure_init, precision
-from .interpolate_inputs import check_head, check_rest, check_rotation, check_setup, strand_variation
-from .interpolate_kernels import (dense_from_edges, dense_nodes, guide_frames, ivec5, push_out_of_ellipsoid,
-                                  vec3)
+from .interpolate_inputs import (check_directors, check_head, check_rest, check_rotation, check_setup,
+                                 strand_variation)
+from .interpolate_kernels import (dense_from_edges, dense_nodes, director_frames, guide_frames, guide_rotations,
+                                  ivec5, push_out_of_ellipsoid, vec3, vec4)
 from .scalp import (ScalpChart, delaunay, locate, nearest, perpendicular,  # noqa: F401
                     sample_scalp_roots)
 
@@ -71,16 +73,27 @@ class Interpolator:
         from their guides. Node 0 of rest_shapes must be dense_roots (within 1e-6 m); frizz,
         length_variation, curl_phase_variation and clump_radius do not apply. A head collider
         still acts on top: rest nodes within head_margin of it are moved.
+    rest_directors [G, n_nodes - 1, 3] (with rest shapes only): the guides' first material
+        directors at rest (`Simulator.material_directors()` before the first step). The edges
+        then turn with the guides' material frames (edge tangent, director) instead of Bishop
+        frames recomputed from the positions, and every `interpolate` call takes the guides'
+        directors now (`directors=`). A Bishop frame transported along a bent wavy guide spins
+        about the edges by tens of degrees per edge relative to its rest (the holonomy of the
+        changed curve), and that spin swings the dense strands' own waves into kinks; the
+        material frame turns only as far as the guide is strained. `style_interpolator` sets
+        this up from a simulator.
     """
 
     def __init__(self, guide_roots, guide_normals, dense_roots, n_nodes, *, mode="blend",
                  blend=0.5, clump_radius=None, frizz=0.0, length_variation=0.0,
                  curl_phase_variation=0.0, seed=0, head=None, head_margin=0.002,
-                 rest_guides=None, rest_shapes=None):
+                 rest_guides=None, rest_shapes=None, rest_directors=None):
         ensure_init()
         roots, normals, dense = check_setup(guide_roots, guide_normals, dense_roots, n_nodes)
         self.n_guides, self.n_dense, self.n_nodes = len(roots), len(dense), int(n_nodes)
         rest = check_rest(rest_guides, rest_shapes, roots, dense, self.n_nodes)
+        if rest_directors is not None and rest is None:
+            raise ValueError("rest_directors needs rest_guides and rest_shapes (it describes the rest guides)")
         varied = frizz or length_variation or curl_phase_variation or clump_radius is not None
         if rest is not None and varied:
             raise ValueError("frizz, length_variation, curl_phase_variation and clump_radius must keep "
@@ -107,9 +120,14 @@ class Interpolator:
         g, d, n = self.n_guides, self.n_dense, self.n_nodes
         self._t, self._u = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
         self._out = ti.ndarray(vec3, (d, n))
-        self._edges = None
+        self._edges, self._directors = None, None
         if rest is not None:
-            self._fit_rest_edges(*rest)
+            self._fit_rest_edges(*rest, rest_directors)
+
+    @property
+    def needs_directors(self) -> bool:
+        """True when built with rest_directors: `interpolate` then needs the guides' directors."""
+        return self._directors is not None
 
     def _upload_strands(self, roots, normals, dense, par, keys):
         """Upload the per-strand geometry and parameters (see `dense_nodes`)."""
@@ -129,15 +147,25 @@ class Interpolator:
         self._par = ti.ndarray(float, (d, 5))  # `float` resolves to the precision now, not at import
         self._par.from_numpy(np.ascontiguousarray(par, dtype=self._dtype))
 
-    def _fit_rest_edges(self, rest_guides, rest_shapes):
-        """Store the dense rest edges [D, n_nodes - 1] and the guides' rest Bishop frames."""
+    def _fit_rest_edges(self, rest_guides, rest_shapes, rest_directors):
+        """Store the dense rest edges [D, n_nodes - 1] and the guides' rest frames (material
+        frames with rest_directors, else Bishop frames)."""
         g, n = self.n_guides, self.n_nodes
         self._t_rest, self._u_rest_frames = ti.ndarray(vec3, (g, n - 1)), ti.ndarray(vec3, (g, n - 1))
-        guide_frames(self._guides_in(rest_guides), self._normal, self._u_rest, self._pose,
-                      self._t_rest, self._u_rest_frames)  # the pose is still the identity
+        if rest_directors is None:
+            guide_frames(self._guides_in(rest_guides), self._normal, self._u_rest, self._pose,
+                          self._t_rest, self._u_rest_frames)  # the pose is still the identity
+        else:
+            self._directors = ti.ndarray(vec3, (g, n - 1))
+            self._directors.from_numpy(check_directors("rest_directors", rest_directors, rest_guides,
+                                                       self._dtype))
+            director_frames(self._guides_in(rest_guides), self._directors, self._t_rest,
+                             self._u_rest_frames)
         self._edges = _upload(np.diff(rest_shapes, axis=1), vec3, (self.n_dense, n - 1), self._dtype)
+        self._q = ti.ndarray(vec4, (g, n - 1))
 
-    def interpolate(self, guide_positions, head_rotation=None, head_translation=None, out=None):
+    def interpolate(self, guide_positions, head_rotation=None, head_translation=None, out=None,
+                    directors=None):
         """Dense node positions [D, n_nodes, 3] (m) as numpy.
 
         guide_positions: numpy [G, n_nodes, 3] (m) or a ti.ndarray of vec3 [G, n_nodes] in this
@@ -145,6 +173,9 @@ class Interpolator:
         head_rotation [3, 3], head_translation [3] (m): the head's rigid motion from rest
             (default identity); it carries the root frames and the head collider.
         out: optional numpy [D, n_nodes, 3] of this precision's dtype to fill (else a new array).
+        directors [G, n_nodes - 1, 3]: the guides' material directors now
+            (`Simulator.material_directors()`); required when built with rest_directors,
+            ignored otherwise.
         On the CPU the kernels write straight into the numpy array (no copy)."""
         shape = (self.n_dense, self.n_nodes, 3)
         if out is None:
@@ -153,36 +184,47 @@ class Interpolator:
                   and out.flags.c_contiguous):
             raise ValueError(f"out must be a C-contiguous {np.dtype(self._dtype).name} array "
                              f"{list(shape)}, got {getattr(out, 'dtype', None)} {list(np.shape(out))}")
-        self._run(guide_positions, out, head_rotation, head_translation)
+        self._run(guide_positions, out, head_rotation, head_translation, directors)
         if self._head is not None:
             out[:, 1:] = self._collide_on_host(out[:, 1:])
         return out
 
-    def interpolate_ndarray(self, guide_positions, head_rotation=None, head_translation=None):
+    def interpolate_ndarray(self, guide_positions, head_rotation=None, head_translation=None,
+                            directors=None):
         """As `interpolate`, into this interpolator's ti.ndarray of vec3 [D, n_nodes] (m), which
         stays on the device and is overwritten by the next call. A callable head collider makes
         a round trip through numpy."""
-        self._run(guide_positions, self._out, head_rotation, head_translation)
+        self._run(guide_positions, self._out, head_rotation, head_translation, directors)
         if self._head is not None:
             pts = self._out.to_numpy()
             pts[:, 1:] = self._collide_on_host(pts[:, 1:])
             self._out.from_numpy(pts)
         return self._out
 
-    def _run(self, guide_positions, out, head_rotation, head_translation):
+    def _run(self, guide_positions, out, head_rotation, head_translation, directors):
         x = self._guides_in(guide_positions)
+        if self._directors is not None:
+            if directors is None:
+                raise ValueError("directors must be given: this interpolator was built with rest_directors "
+                                 "(pass directors=simulator.material_directors())")
+            self._directors.from_numpy(check_directors("directors", directors, None, self._dtype,
+                                                       (self.n_guides, self.n_nodes - 1)))
         rot = check_rotation(head_rotation)
         trans = np.zeros(3) if head_translation is None else np.asarray(head_translation, np.float64)
         if trans.shape != (3,) or not np.all(np.isfinite(trans)):
             raise ValueError(f"head_translation must be 3 finite numbers (m), got {head_translation!r}")
         self._pose.from_numpy(np.vstack([rot, trans]).astype(self._dtype))
-        guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
+        if self._directors is None:
+            guide_frames(x, self._normal, self._u_rest, self._pose, self._t, self._u)
+        else:
+            director_frames(x, self._directors, self._t, self._u)
         if self._edges is None:
             dense_nodes(x, self._t, self._u, self._idx, self._w, self._rel, self._local, self._par,
                          self._pose, out)
         else:
-            dense_from_edges(x, self._t, self._u, self._t_rest, self._u_rest_frames, self._idx,
-                              self._w, self._rel, self._par, self._pose, self._edges, out)
+            guide_rotations(self._t, self._u, self._t_rest, self._u_rest_frames, self._q)
+            dense_from_edges(x, self._q, self._idx, self._w, self._rel, self._par, self._pose, self._edges,
+                              out)
         if self._ellipsoid is not None:
             push_out_of_ellipsoid(out, self._pose, self._shape)
 

@@ -57,6 +57,28 @@ def check_rest(rest_guides, rest_shapes, roots, dense, n_nodes):
     return out
 
 
+def check_directors(name, directors, rest_guides, dtype, shape=None):
+    """Directors [G, n - 1, 3] as a contiguous array of dtype. With rest_guides [G, n, 3] (the
+    construction's check) each must also stand off its rest edge: a director along its edge
+    defines no frame."""
+    arr = np.asarray(directors, dtype=np.float64)
+    if rest_guides is not None:
+        edges = np.diff(np.asarray(rest_guides, dtype=np.float64), axis=1)
+        shape = edges.shape[:2]
+    if arr.shape != tuple(shape) + (3,):
+        raise ValueError(f"{name} must have shape [{shape[0]}, {shape[1]}, 3], got {list(arr.shape)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got NaN or inf")
+    if rest_guides is not None:
+        t = edges / np.maximum(np.linalg.norm(edges, axis=2, keepdims=True), 1e-300)
+        normal = np.linalg.norm(arr - (arr * t).sum(2, keepdims=True) * t, axis=2)
+        if normal.min() < 1e-3 * max(np.linalg.norm(arr, axis=2).max(), 1e-300):
+            g, j = np.unravel_index(np.argmin(normal), normal.shape)
+            raise ValueError(f"{name}[{g}, {j}] must stand off its rest edge (a director normal to "
+                             f"the edge), got one along it")
+    return np.ascontiguousarray(arr, dtype=dtype)
+
+
 def check_head(head, margin):
     if not (is_real(margin) and math.isfinite(margin) and margin >= 0):
         raise ValueError(f"head_margin must be a finite number >= 0 m, got {margin!r}")

@@ -16,6 +16,8 @@ vec3 = ti.math.vec3
 ivec5 = ti.types.vector(5, ti.i32)  # integer element types do not depend on the float precision
 Vec3s1 = ti.types.ndarray(dtype=vec3, ndim=1)
 Vec3s2 = ti.types.ndarray(dtype=vec3, ndim=2)
+vec4 = ti.math.vec4
+Quats2 = ti.types.ndarray(dtype=vec4, ndim=2)
 Scalars2 = ti.types.ndarray(dtype=float, ndim=2)  # `float` resolves when the kernel compiles
 
 
@@ -47,6 +49,31 @@ def guide_frames(x: Vec3s2, normal: Vec3s1, u_rest: Vec3s1, head: Vec3s1, t_out:
             u = (u - u.dot(t) * t).normalized()  # round-off drift off the normal plane
             t_out[g, j], u_out[g, j] = t, u
             t_prev = t
+
+
+@ti.kernel
+def director_frames(x: Vec3s2, m1: Vec3s2, t_out: Vec3s2, u_out: Vec3s2):
+    """Material frame (t^j, u^j) of every guide edge j: t the unit edge of positions x [m], u the
+    director m1 made normal to it (the simulator computes m1 normal to the edges of its own
+    positions; the two can part by round-off). One thread per guide, serial along it: a
+    zero-length edge keeps the previous tangent, a director along its edge the previous u."""
+    for g in range(x.shape[0]):
+        t_prev = (x[g, 1] - x[g, 0]).normalized()
+        u_prev = vec3(0.0)
+        for j in range(x.shape[1] - 1):
+            e = x[g, j + 1] - x[g, j]
+            t = t_prev
+            if e.norm() > 1e-12:
+                t = e.normalized()
+            u = m1[g, j] - m1[g, j].dot(t) * t
+            if u.norm() > 1e-6:
+                u = u.normalized()
+            elif j > 0:
+                u = parallel_transport(u_prev, t_prev, t)
+            else:  # no director to go by at the root: any normal
+                u = t.cross(ti.select(ti.abs(t[0]) > 0.9, vec3(0.0, 1.0, 0.0), vec3(1.0, 0.0, 0.0))).normalized()
+            t_out[g, j], u_out[g, j] = t, u
+            t_prev, u_prev = t, u
 
 
 @ti.func
@@ -166,22 +193,53 @@ def push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
                 out[d, i] = centre + _rotate(head, y + margin * (y / (radii * radii)).normalized())
 
 
+@ti.kernel
+def guide_rotations(t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2, q_out: Quats2):
+    """Unit quaternion q_out[g, j] = (w, x, y, z) of the rotation taking guide g's rest Bishop
+    frame of edge j (u, t x u, t at rest) to its frame now (Shepperd's method: the largest of
+    w, x, y, z is computed from the diagonal, so no division is by a small number). One thread
+    per guide edge."""
+    for g, j in t:
+        u0, t0, u1, t1 = u_rest[g, j], t_rest[g, j], u[g, j], t[g, j]
+        v0, v1 = t0.cross(u0), t1.cross(u1)
+        r = u1.outer_product(u0) + v1.outer_product(v0) + t1.outer_product(t0)
+        trace = r[0, 0] + r[1, 1] + r[2, 2]
+        q = vec4(0.0)
+        if trace > 0.0:
+            s = 2.0 * ti.sqrt(trace + 1.0)
+            q = vec4(0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s)
+        elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+            s = 2.0 * ti.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+            q = vec4((r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s)
+        elif r[1, 1] > r[2, 2]:
+            s = 2.0 * ti.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+            q = vec4((r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s)
+        else:
+            s = 2.0 * ti.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+            q = vec4((r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s)
+        q_out[g, j] = q.normalized()
+
+
 @ti.func
-def _turned(e, t0, u0, t1, u1):
-    """e turned by the rotation taking the frame (u0, t0 x u0, t0) to (u1, t1 x u1, t1)."""
-    v0, v1 = t0.cross(u0), t1.cross(u1)
-    return e.dot(u0) * u1 + e.dot(v0) * v1 + e.dot(t0) * t1
+def _quat_rotate(q, e):
+    """e turned by the unit quaternion q = (w, x, y, z)."""
+    r = vec3(q[1], q[2], q[3])
+    c = r.cross(e)
+    return e + 2.0 * q[0] * c + 2.0 * r.cross(c)
 
 
 @ti.kernel
-def dense_from_edges(x: Vec3s2, t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2,
-                      idx: ti.types.ndarray(dtype=ivec5, ndim=1), w: Vec3s1, rel: Vec3s2,
-                      par: Scalars2, head: Vec3s1, edges: Vec3s2, out: Vec3s2):
+def dense_from_edges(x: Vec3s2, q: Quats2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), w: Vec3s1,
+                      rel: Vec3s2, par: Scalars2, head: Vec3s1, edges: Vec3s2, out: Vec3s2):
     """Dense nodes out[d, i] [m] of strands with rest shapes: the root as in `dense_nodes`, then
-    each rest edge edges[d, j] [m] turned by the rotation of edge j of each of its guides
-    (Bishop frame at rest t_rest, u_rest -> now t, u), blended with weights (1 - blend) w[d]
-    (triangle) and blend (clump guide), and rescaled to its rest length: inextensible, exact
-    at rest and rigid under a rigid head motion. One thread per dense strand, serial along it."""
+    each rest edge edges[d, j] [m] turned by the blend of the rotations q[m, j] of edge j of its
+    guides (`guide_rotations`) with weights (1 - blend) w[d] (triangle) and blend (clump
+    guide), and laid end to end. The blend is the normalised weighted sum of the quaternions
+    on the clump guide's side of the sphere: a rotation, so every edge keeps its rest length
+    exactly, and the rotation of edge j changes along the strand only as the guides' own do
+    (a blend of the turned edges instead shrinks the edges the guides turn apart, and rescaling
+    them to length kinks the strand). Exact at rest, rigid under a rigid head motion. One
+    thread per dense strand, serial along it."""
     for d in range(out.shape[0]):
         blend, wd = par[d, 0], w[d]
         weight = ti.Vector([(1.0 - blend) * wd[0], (1.0 - blend) * wd[1], (1.0 - blend) * wd[2], blend])
@@ -191,11 +249,13 @@ def dense_from_edges(x: Vec3s2, t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Ve
         out[d, 0] = root
         g = idx[d][3]
         for j in range(out.shape[1] - 1):
-            e = edges[d, j]
-            turned = vec3(0.0)
+            ref = q[g, j]
+            mean = vec4(0.0)
             for k in ti.static(range(4)):
-                m = idx[d][k]
-                turned += weight[k] * _turned(e, t_rest[m, j], u_rest[m, j], t[m, j], u[m, j])
-            if turned.norm() < 1e-6 * e.norm():  # guides turned opposite ways: follow the clump
-                turned = _turned(e, t_rest[g, j], u_rest[g, j], t[g, j], u[g, j])
-            out[d, j + 1] = out[d, j] + turned * (e.norm() / turned.norm())
+                qk = q[idx[d][k], j]
+                mean += weight[k] * ti.select(qk.dot(ref) < 0.0, -1.0, 1.0) * qk
+            # guides turned half a turn apart from each other can cancel: follow the clump guide
+            turn = ref
+            if mean.norm() > 1e-6:
+                turn = mean.normalized()
+            out[d, j + 1] = out[d, j] + _quat_rotate(turn, edges[d, j])

@@ -40,6 +40,12 @@ class RodAccess:
     def set_material_angles(self, theta) -> None:
         self.rods.set_material_angles(theta)
 
+    def material_directors(self) -> np.ndarray:
+        """The guides' first material directors m1 [S, N-1, 3] (unit vectors normal to each
+        edge) from the positions and material angles now (RodSystem.material_directors): what
+        `Interpolator.interpolate(directors=...)` takes for an imported style."""
+        return self.rods.material_directors()
+
     def frames(self) -> dict:
         """Bishop and material frames, tangents and curvature binormals (RodSystem.frames)."""
         return self.rods.frames()

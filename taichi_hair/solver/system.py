@@ -61,6 +61,7 @@ class RodSystem:
                 inv_mass[:, 0] = 1.0 / self.model.mass.to_numpy()[:, 0]
             self.model.inv_mass.from_numpy(inv_mass)
         self.bundles = StepBundles(self.model, self.state)
+        self._frame_scratch = None  # material_directors' frames, allocated on first use
 
     # ---- state in and out -------------------------------------------------------------
     @property
@@ -136,6 +137,16 @@ class RodSystem:
         st = self.state
         return {"u": st.bishop_u.to_numpy(), "v": st.bishop_v.to_numpy(), "m1": st.m1.to_numpy(),
                 "m2": st.m2.to_numpy(), "t": t, "kb": st.kb.to_numpy()}
+
+    def material_directors(self) -> np.ndarray:
+        """Numpy copy [S, N-1, 3] of the first material director m1 of every edge, from the
+        positions and material angles as they are now. Computed into arrays of its own: the
+        state's frames (which the next step reads) are left as the last step left them."""
+        st, md = self.state, self.model
+        if self._frame_scratch is None:
+            self._frame_scratch = tuple(arrays.like(a) for a in (st.bishop_u, st.bishop_v, st.m1, st.m2, st.kb))
+        update_frames(md.clamp, st.x, md.node_count, st.root_t, st.root_u, st.theta, *self._frame_scratch)
+        return self._frame_scratch[2].to_numpy()
 
     # ---- frames and twist -------------------------------------------------------------
     def update_frames(self) -> None:
