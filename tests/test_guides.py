@@ -212,9 +212,10 @@ def test_imported_bob_bends_no_more_than_its_guides_under_a_nod():
     """The shipped imported_style (a 3000-strand wavy bob on 200 guides, a 20 degree nod) at
     t = 1 s: a dense strand should bend beyond its rest shape by little more than the guides it
     follows bend beyond theirs. Counted: strands whose largest turn beyond rest exceeds the
-    largest of their four guides' by 10 degrees. Measured 15 of 3000 turning edges with the
-    guides' material frames; 147 with Bishop frames recomputed from the positions (their spin
-    about the bent wavy guides swings the strands' own waves into kinks)."""
+    largest of their four guides' by 10 degrees. Measured 0 of 3000 with the guides' material
+    frames (15 without fading guides that turned far from the clump guide out of the blend);
+    147 with Bishop frames recomputed from the positions (their spin about the bent wavy
+    guides swings the strands' own waves into kinks)."""
     from pathlib import Path
     from taichi_hair.app.runner import load_scene_module
     from taichi_hair.hair.interpolate import Interpolator
@@ -243,5 +244,5 @@ def test_imported_bob_bends_no_more_than_its_guides_under_a_nod():
         dense = it.interpolate(guides, head_rotation=rotation, head_translation=translation,
                                directors=sim.material_directors())
         counts.append(int(((turns(dense) - turns(sel.dense)).max(axis=1) - guide_bend > 10).sum()))
-    assert counts[0] <= 30, counts  # 1 % of the strands
+    assert counts[0] <= 5, counts
     assert counts[1] > 60, counts  # not vacuous: the motion does bend the guides apart

@@ -228,6 +228,10 @@ def _quat_rotate(q, e):
     return e + 2.0 * q[0] * c + 2.0 * r.cross(c)
 
 
+AGREE_FULL = 0.8660254  # |q_a . q_b| = cos(half the angle between two rotations): 60 degrees
+AGREE_NONE = 0.7071068  # 90 degrees
+
+
 @ti.kernel
 def dense_from_edges(x: Vec3s2, q: Quats2, idx: ti.types.ndarray(dtype=ivec5, ndim=1), w: Vec3s1,
                       rel: Vec3s2, par: Scalars2, head: Vec3s1, edges: Vec3s2, out: Vec3s2):
@@ -235,11 +239,12 @@ def dense_from_edges(x: Vec3s2, q: Quats2, idx: ti.types.ndarray(dtype=ivec5, nd
     each rest edge edges[d, j] [m] turned by the blend of the rotations q[m, j] of edge j of its
     guides (`guide_rotations`) with weights (1 - blend) w[d] (triangle) and blend (clump
     guide), and laid end to end. The blend is the normalised weighted sum of the quaternions
-    on the clump guide's side of the sphere: a rotation, so every edge keeps its rest length
-    exactly, and the rotation of edge j changes along the strand only as the guides' own do
-    (a blend of the turned edges instead shrinks the edges the guides turn apart, and rescaling
-    them to length kinks the strand). Exact at rest, rigid under a rigid head motion. One
-    thread per dense strand, serial along it."""
+    on the clump guide's side of the sphere, each guide's weight faded from 1 to 0 as its
+    rotation parts from the clump guide's by 60 to 90 degrees: a rotation, so every edge
+    keeps its rest length exactly, and the rotation of edge j changes along the strand only as
+    the guides' own do (a blend of the turned edges instead shrinks the edges the guides turn
+    apart, and rescaling them to length kinks the strand). Exact at rest, rigid under a rigid
+    head motion. One thread per dense strand, serial along it."""
     for d in range(out.shape[0]):
         blend, wd = par[d, 0], w[d]
         weight = ti.Vector([(1.0 - blend) * wd[0], (1.0 - blend) * wd[1], (1.0 - blend) * wd[2], blend])
@@ -253,7 +258,12 @@ def dense_from_edges(x: Vec3s2, q: Quats2, idx: ti.types.ndarray(dtype=ivec5, nd
             mean = vec4(0.0)
             for k in ti.static(range(4)):
                 qk = q[idx[d][k], j]
-                mean += weight[k] * ti.select(qk.dot(ref) < 0.0, -1.0, 1.0) * qk
+                agree = qk.dot(ref)
+                # a guide turned far from the clump guide (more than 60 degrees apart, nothing
+                # at 90) fades out of the blend: a mean of rotations that far apart is a turn
+                # none of them made, and near the crown it stood strands on end
+                trust = ti.math.clamp((ti.abs(agree) - AGREE_NONE) / (AGREE_FULL - AGREE_NONE), 0.0, 1.0)
+                mean += weight[k] * trust * ti.select(agree < 0.0, -1.0, 1.0) * qk
             # guides turned half a turn apart from each other can cancel: follow the clump guide
             turn = ref
             if mean.norm() > 1e-6:
