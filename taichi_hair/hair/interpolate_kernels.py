@@ -221,11 +221,11 @@ def guide_rotations(t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2, q_out:
 
 
 @ti.func
-def _quat_rotate(q, e):
-    """e turned by the unit quaternion q = (w, x, y, z)."""
-    r = vec3(q[1], q[2], q[3])
+def _quat_rotate(rotation, e):
+    """e turned by the unit quaternion rotation = (w, x, y, z)."""
+    r = vec3(rotation[1], rotation[2], rotation[3])
     c = r.cross(e)
-    return e + 2.0 * q[0] * c + 2.0 * r.cross(c)
+    return e + 2.0 * rotation[0] * c + 2.0 * r.cross(c)
 
 
 AGREE_FULL = 0.8660254  # |q_a . q_b| = cos(half the angle between two rotations): 60 degrees
