@@ -9,7 +9,8 @@ import pytest
 
 import taichi_hair as th
 from helpers import rotation_matrix
-from taichi_hair.hair.guides import GuideSelection, animate_style, pick_guides, resample_strands
+from taichi_hair.hair.guides import (GuideSelection, animate_style, pick_guides, resample_strands,
+                                     style_interpolator)
 from taichi_hair.hair.hairfile import read_hair, write_hair
 from taichi_hair.hair.scalp import sample_scalp_roots
 
@@ -200,6 +201,13 @@ def strands_with(bad):
 def test_bad_inputs_raise_value_errors_naming_them(strands, kwargs, phrase):
     with pytest.raises(ValueError, match=phrase):
         pick_guides(strands, **kwargs)
+
+
+def test_style_interpolator_needs_the_simulator_at_rest(selection):
+    sim = th.Simulator(th.Groom.from_polylines(selection.guides), th.Material(), dt=5e-4)
+    sim.step(20)
+    with pytest.raises(ValueError, match="simulator must hold selection.guides at rest"):
+        style_interpolator(selection, sim)
 
 
 def test_animate_style_rejects_what_is_not_a_selection():

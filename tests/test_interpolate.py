@@ -282,6 +282,34 @@ def test_bad_rest_shapes_raise_value_errors_naming_them(kwargs, phrase):
                                                   for k, v in kwargs.items()})
 
 
+def test_bad_directors_raise_value_errors_naming_them():
+    roots, normals = sample_scalp_roots(10)
+    dense = random_cap(40)
+    guides = helices(roots, normals, n_nodes=8)
+    shapes = wavy_rest_shapes(dense, 8)
+    edges = np.diff(guides, axis=1)
+    directors = np.cross(edges, [0.3, 0.2, 1.0])
+    common = (roots, normals, dense, 8)
+    with pytest.raises(ValueError, match="rest_directors needs rest_guides and rest_shapes"):
+        Interpolator(*common, rest_directors=directors)
+    with pytest.raises(ValueError, match=r"rest_directors must have shape \[10, 7, 3\]"):
+        Interpolator(*common, rest_guides=guides, rest_shapes=shapes, rest_directors=directors[:, :6])
+    along = directors.copy()
+    along[2, 5] = 3.0 * edges[2, 5]
+    with pytest.raises(ValueError, match=r"rest_directors\[2, 5\] must stand off its rest edge"):
+        Interpolator(*common, rest_guides=guides, rest_shapes=shapes, rest_directors=along)
+    interp = Interpolator(*common, rest_guides=guides, rest_shapes=shapes, rest_directors=directors)
+    assert interp.needs_directors
+    with pytest.raises(ValueError, match="directors must be given"):
+        interp.interpolate(guides)
+    nan = directors.copy()
+    nan[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="directors must be finite"):
+        interp.interpolate(guides, directors=nan)
+    # at rest, with the rest directors, the style comes back
+    np.testing.assert_allclose(interp.interpolate(guides, directors=directors), shapes, rtol=0, atol=1e-12)
+
+
 IMPORT_FIRST_SCRIPT = """
 import math, sys
 import numpy as np
