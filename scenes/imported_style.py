@@ -25,7 +25,8 @@ def make_style(path: Path, n_strands=3000, seed=7):
     th.write_hair(path, th.HairFile.from_strands(strands, info="taichi_hair synthetic bob"))
 
 
-def _selection():
+def guide_selection() -> th.GuideSelection:
+    """The style's strands (written first if STYLE is missing) and the 200 guides picked from them."""
     if not STYLE.exists():
         make_style(STYLE)
     strands = th.read_hair(STYLE).strands(scale=0.01)
@@ -33,7 +34,7 @@ def _selection():
 
 
 def build() -> th.Scene:
-    selection = _selection()
+    selection = guide_selection()
     groom = th.Groom.from_polylines(selection.guides)
     head = th.Head.default()
     return th.Scene(groom=groom, head=head, material=th.Material(), motion=MOTION, drag=5e-4)
@@ -41,7 +42,7 @@ def build() -> th.Scene:
 
 def interpolator(scene, simulator):
     """Dense hair: the imported strands themselves, turned with their guides' material frames."""
-    return th.style_interpolator(_selection(), simulator)
+    return th.style_interpolator(guide_selection(), simulator)
 
 
 def shot() -> th.Shot:

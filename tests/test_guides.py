@@ -230,7 +230,7 @@ def test_imported_bob_bends_no_more_than_its_guides_under_a_nod():
     mod = load_scene_module(Path("scenes/imported_style.py").resolve())
     scene = mod.build()
     sim = th.Simulator.from_scene(scene, dt=1e-3)
-    sel = mod._selection()
+    sel = mod.guide_selection()
     interp = mod.interpolator(scene, sim)
     bishop = Interpolator(sel.guide_roots, sel.guide_normals, sel.dense_roots, sel.n_nodes, mode="blend",
                           blend=0.5, rest_guides=sel.guides, rest_shapes=sel.dense)

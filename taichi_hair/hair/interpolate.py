@@ -9,7 +9,8 @@ Per frame (Taichi, ndarray arguments so each kernel compiles once per process; t
 travels as a [4] vec3 ndarray, rows of R then t, never as a scalar matrix argument, whose
 type could be fixed at float32 before `taichi_hair.init` chose the precision):
   1. `guide_frames`: Bishop frame of every guide edge by parallel transport from the root
-     (one thread per guide: the transport is serial along the strand).
+     (one thread per guide: the transport is serial along the strand); for an imported style
+     built with the guides' material directors, `director_frames` (edge and director) instead.
   2. `dense_nodes`: one thread per dense strand: barycentric interpolation of the three guides'
      root-relative shapes, clump interpolation (one guide plus an offset carried in its Bishop
      frame, so it follows the guide's bending and twist), the per-strand blend of both, and
@@ -66,8 +67,9 @@ class Interpolator:
     rest_guides [G, n_nodes, 3], rest_shapes [D, n_nodes, 3] (m), given together: the guides'
         rest positions and the shapes the dense strands must have when the guides are there
         (an imported hairstyle). The root is placed as in the modes above; every rest edge j
-        then turns as edge j of the strand's guides turns (the rotation of their Bishop
-        frames from rest, blended with the mode's weights) and keeps its rest length, and the
+        then turns as edge j of the strand's guides turns (the rotation of their frames
+        from rest, Bishop frames or with rest_directors material frames, blended with the
+        mode's weights) and keeps its rest length, and the
         edges are laid end to end: at rest the output is rest_shapes (to round-off), a rigid
         head motion moves it rigidly, and dense strands are inextensible however far they lie
         from their guides. Node 0 of rest_shapes must be dense_roots (within 1e-6 m); frizz,

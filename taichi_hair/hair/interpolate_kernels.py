@@ -9,6 +9,7 @@ import taichi as ti
 
 from ..rods.frames import parallel_transport
 from ..rods.linalg import rotate_rows, unrotate_rows
+from ..solver.segment_geometry import perpendicular
 from ..runtime import precision
 
 vec2 = ti.math.vec2
@@ -71,7 +72,7 @@ def director_frames(x: Vec3s2, m1: Vec3s2, t_out: Vec3s2, u_out: Vec3s2):
             elif j > 0:
                 u = parallel_transport(u_prev, t_prev, t)
             else:  # no director to go by at the root: any normal
-                u = t.cross(ti.select(ti.abs(t[0]) > 0.9, vec3(0.0, 1.0, 0.0), vec3(1.0, 0.0, 0.0))).normalized()
+                u = perpendicular(t)
             t_out[g, j], u_out[g, j] = t, u
             t_prev, u_prev = t, u
 
@@ -195,8 +196,9 @@ def push_out_of_ellipsoid(out: Vec3s2, head: Vec3s1, shape: Vec3s1):
 
 @ti.kernel
 def guide_rotations(t: Vec3s2, u: Vec3s2, t_rest: Vec3s2, u_rest: Vec3s2, q_out: Quats2):
-    """Unit quaternion q_out[g, j] = (w, x, y, z) of the rotation taking guide g's rest Bishop
-    frame of edge j (u, t x u, t at rest) to its frame now (Shepperd's method: the largest of
+    """Unit quaternion q_out[g, j] = (w, x, y, z) of the rotation taking guide g's rest frame of
+    edge j (u, t x u, t at rest: Bishop or material, `guide_frames` or `director_frames`) to
+    its frame now (Shepperd's method: the largest of
     w, x, y, z is computed from the diagonal, so no division is by a small number). One thread
     per guide edge."""
     for g, j in t:
