@@ -109,8 +109,10 @@ class RodState:
     residuals: object  # [S, 2] float: projection and twist residual maxima
     # history [S, N, 9] vec3 with the implicit step, [S, N, 5] without (one array: Taichi caps
     # a kernel's argument count): [..., FRICTION_SHIFT] the friction shift given to the node so
-    # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m]
-    # (collisions.contact_with_friction), [..., CONTACT_QUERY]
+    # far in this step's projection [m, world axes], [..., FRICTION_PUSH].x its pushes so far [m],
+    # .y the collider holding it, .z minus its friction coefficient while static friction holds it
+    # (0 if it slides), the coefficient once the step's friction has settled
+    # (collisions.contact_with_friction, projection.settle_friction), [..., CONTACT_QUERY]
     # the node's step displacement dx [m] when the colliders were last queried for it and
     # [..., CONTACT_CLEARANCE] (its smallest distance beyond the margins of the analytic shapes and
     # hands, the groups this pass queries it for as bits, the same for the distance grid [m])

@@ -50,7 +50,8 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     to the node so far this step, pushed [m] its pushes so far. The node's slip along the
     surface since p_prev, less that shift, is cancelled by a new shift of at most friction x
     (pushed + this push): static friction while the slip fits in the cone, else it is
-    shortened by the cone's length. Returns (moved, new shift, new pushed)."""
+    shortened by the cone's length. Returns (moved, new shift, new pushed, grip): grip is the
+    friction coefficient where static friction holds (the whole slip cancelled), else 0."""
     push = margin - d
     total = pushed + push
     # only the shift's part along this surface is taken back: its normal part, left by an
@@ -60,9 +61,12 @@ def resolve_contact(p, p_prev, d, n, margin, friction, shift, pushed):
     tangential = slip - slip.dot(n) * n
     length = tangential.norm()
     new_shift = vec3(0.0)
+    grip = 0.0
+    if friction > 0.0 and friction * total >= length:
+        grip = friction
     if length > 1e-12:
         new_shift = -ti.min(1.0, friction * total / length) * tangential
-    return moved + new_shift, new_shift, total
+    return moved + new_shift, new_shift, total, grip
 
 
 # Distances change at most DISTANCE_SLOPE times as fast as a node moves (1 for exact distances;
@@ -171,8 +175,9 @@ def note_clearance(s, i, d, margin, group, springs: ti.template(), st: ti.templa
         st.history[s, i, CONTACT_CLEARANCE] = c
 
 
-# A collider's surface as contact_with_friction takes it: its margin [m] and friction coefficient
-ContactSurface = ti.types.struct(margin=float, friction=float)
+# A collider's surface as contact_with_friction takes it: its margin [m], friction coefficient,
+# and whether friction has settled for the step (1: pushes only, projection.FRICTION_SETTLED)
+ContactSurface = ti.types.struct(margin=float, friction=float, settled=ti.i32)
 
 
 @ti.func
@@ -182,17 +187,24 @@ def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_
     along its normal n, in the collider's frame (head coordinates at pose now when on_head), its
     step totals (st.history's FRICTION_SHIFT in world axes and FRICTION_PUSH) read and written
     back, so a node touching a head and a world collider in one step keeps one budget; `contact`
-    names the collider (held_by). Returns the moved point in the world."""
+    names the collider (held_by). Once friction has settled (surface.settled) the node is only
+    pushed out, its shift and grip kept. Returns the moved point in the world."""
     shift = st.history[s, i, FRICTION_SHIFT]
     if on_head:
         shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
-    moved, shift, total = resolve_contact(local, local_prev, d, n, surface.margin, surface.friction, shift,
-                                          st.history[s, i, FRICTION_PUSH].x)
+    moved = local + (surface.margin - d) * n
+    total = st.history[s, i, FRICTION_PUSH].x + surface.margin - d
+    grip = st.history[s, i, FRICTION_PUSH].z
+    if not surface.settled:
+        moved, shift, total, grip = resolve_contact(local, local_prev, d, n, surface.margin, surface.friction, shift,
+                                                    st.history[s, i, FRICTION_PUSH].x)
     if on_head:
         shift = head_rotate(head, now, shift)
         moved = from_head(head, now, moved)
     st.history[s, i, FRICTION_SHIFT] = shift
-    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, 0.0)
+    if not surface.settled:
+        grip = -grip  # held by static friction: stuck once friction settles (projection.settle_friction)
+    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, grip)
     return moved
 
 
@@ -285,7 +297,8 @@ def place_contact(s, i, target, normal, springs: ti.template(), md: ti.template(
 
 @ti.func
 def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.template(), md: ti.template(),
-                   st: ti.template(), dr: ti.template(), co: ti.template(), springs: ti.template() = False):
+                   st: ti.template(), dr: ti.template(), co: ti.template(), springs: ti.template() = False,
+                   settled=0):
     """Resolve every free node of strand s against the colliders (co: analytic table, optional
     distance grid; fl.mesh), and the hands (fl.touch). Head-attached shapes are handled in head
     coordinates so their friction sees the motion relative to the moving head (head poses now /
@@ -296,8 +309,9 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
     node's step displacement dx becomes x - x_prev. With springs (the implicit step's length
     correction) nothing moves: each push deeper than SPRING_PUSH of the node's edge becomes a
-    spring to its target in the correction's system (contact_spring; place_contact). Returns
-    the number of pushes."""
+    spring to its target in the correction's system (contact_spring; place_contact). With
+    settled = 1 friction has settled for the step: nodes are only pushed out
+    (contact_with_friction). Returns the number of pushes."""
     pushes = 0
     x, x_prev, head = ti.static(st.x, st.x_prev, dr.head)  # aliases
     # Node 0 is the root: its distance, taken first in each collider's node loop, decides whether
@@ -348,7 +362,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                 if on_head:
                     normal = head_rotate(head, now, n)
                 local_prev = collider_frame(on_head, head, prev, point(x_prev, s, i))
-                surface = ContactSurface(margin=margin, friction=friction)
+                surface = ContactSurface(margin=margin, friction=friction, settled=settled)
                 place_contact(s, i, contact_with_friction(s, i, on_head, head, now, local, local_prev, d, n,
                                                           surface, c + 1, st), normal, springs, md, st)
                 pushes += 1
@@ -365,7 +379,7 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
                         note_clearance(s, i, d, dr.tools[k][2], SHAPES, springs, st)
                         if in_contact(s, i, -1 - k, d, dr.tools[k][2], springs, md, st):
                             # in the hand's frame, which does not turn: shift in world axes
-                            surface = ContactSurface(margin=dr.tools[k][2], friction=dr.tools[k][3])
+                            surface = ContactSurface(margin=dr.tools[k][2], friction=dr.tools[k][3], settled=settled)
                             moved = contact_with_friction(s, i, False, head, now, local, local_prev, d, n,
                                                           surface, -1 - k, st)
                             place_contact(s, i, centre + moved, n, springs, md, st)

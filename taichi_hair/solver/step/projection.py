@@ -11,6 +11,16 @@ from ..pins import HELD_DAMPING
 from .plan import PROJ_CAP, PROJ_COUNT, PROJ_IT, PROJ_IT_SUM, PROJ_STALL, STALL_BELOW
 
 
+# Friction is settled for the step once the lengths are within FRICTION_SETTLED (relative, as
+# projection_tol): later contact passes only push nodes out, keeping each node's friction shift,
+# and nodes static friction held then stay nearly in place (STUCK_MOBILITY), so the remaining
+# Gauss-Newton steps converge as without friction. Re-deciding friction in every pass converged
+# linearly. The slip friction no longer sees is the rest of the correction: about
+# FRICTION_SETTLED / 2 of an edge on a sliding node, STUCK_MOBILITY of that on a stuck one
+# (docs/model.md, "Collisions")
+FRICTION_SETTLED = 5e-4
+
+
 LENGTHS_AFTER_CONTACT = 3  # length-only iterations after a projection with contacts ends unsatisfied
 
 
@@ -63,8 +73,35 @@ def contact_normal(s, i, fl: ti.template(), st: ti.template()):
     return n
 
 
+# Once friction has settled, a node static friction held (contact_grip) moves in the projection
+# as if 1 / STUCK_MOBILITY times as heavy: nearly held, while the system stays regular where a
+# node sits between two held ones on a taut line (with held nodes immovable it is singular)
+STUCK_MOBILITY = 0.01
+
+
 @ti.func
-def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
+def contact_grip(s, i, fl: ti.template(), st: ti.template()):
+    """The friction coefficient of the surface on which static friction held node i of strand s
+    when the step's friction settled (settle_friction), 0 if it slid, is free, or friction has
+    not settled yet."""
+    grip = 0.0
+    if ti.static(fl.contacts):
+        if st.history[s, i, CONTACT_NORMAL].norm_sqr() > 0.0:
+            grip = ti.max(0.0, st.history[s, i, FRICTION_PUSH].z)
+    return grip
+
+
+@ti.func
+def settle_friction(s, n, fl: ti.template(), st: ti.template()):
+    """The step's friction has settled for strand s (n nodes): the nodes static friction holds
+    (collisions.contact_with_friction marks them with -friction) become stuck (contact_grip)."""
+    if ti.static(fl.contacts):
+        for i in range(n):
+            st.history[s, i, FRICTION_PUSH].z = -st.history[s, i, FRICTION_PUSH].z
+
+
+@ti.func
+def sliding_inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
     """M_i^-1 v: node i's inverse mass [1/kg] times v, with a node in contact (a collider pushed
     it this step) unable to move along the contact normal n: w_i (I - n n^T) v. So the projection
     slides contacts along their surfaces and its Gauss-Newton steps converge with contacts inside
@@ -72,6 +109,37 @@ def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.tem
     linearly."""
     n = contact_normal(s, i, fl, st)
     return md.inv_mass[s, i] * (v - v.dot(n) * n)
+
+
+@ti.func
+def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
+    """sliding_inverse_mass_times, STUCK_MOBILITY times that for a stuck node (contact_grip)."""
+    move = sliding_inverse_mass_times(s, i, v, fl, md, st)
+    if contact_grip(s, i, fl, st) > 0.0:
+        move *= STUCK_MOBILITY
+    return move
+
+
+@ti.func
+def held_reaction(s, i, pull, fl: ti.template(), md: ti.template(), st: ti.template()):
+    """The normal move the hold takes out of node i's correction 2 M_i^-1 pull [m] is its
+    surface's reaction, accounted as an accumulated impulse: into the surface it adds to the
+    step's pushes P (friction's budget, collisions.resolve_contact); out of it, it takes back
+    from P, and past P (a contact pushes, never pulls) the node goes free and moves out by the
+    excess. A stuck node (contact_grip) lets go without that move: its multipliers were solved
+    with it nearly held, so its pull overstates what it would move free; the next iteration
+    moves it as a free node. Returns the move [m] to add to 2 inverse_mass_times(pull)."""
+    move = vec3(0.0)
+    n_i = contact_normal(s, i, fl, st)
+    if n_i.norm_sqr() > 0.0:
+        pushed = st.history[s, i, FRICTION_PUSH].x - 2.0 * md.inv_mass[s, i] * pull.dot(n_i)
+        if pushed < 0.0:
+            if contact_grip(s, i, fl, st) == 0.0:
+                move -= pushed * n_i
+            st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
+            pushed = 0.0
+        st.history[s, i, FRICTION_PUSH].x = pushed
+    return move
 
 
 @ti.func
@@ -117,18 +185,8 @@ def solve_inextensibility(s, n, shake, h, fl: ti.template(), md: ti.template(), 
             pull -= st.rhs[s, i - 1] * e_before
         move = 2.0 * inverse_mass_times(s, i, pull, fl, md, st)
         if ti.static(fl.contacts):
-            # a held contact's normal move, taken out of `move`, is the contact's reaction: into the
-            # surface it is a push and adds to the step's pushes P (friction's budget,
-            # collisions.resolve_contact); out of it, it takes back from P, and past P (a contact
-            # pushes, never pulls) the node goes free and moves out by the rest
-            n_i = contact_normal(s, i, fl, st)
-            if n_i.norm_sqr() > 0.0:
-                pushed = st.history[s, i, FRICTION_PUSH].x - 2.0 * md.inv_mass[s, i] * pull.dot(n_i)
-                if pushed < 0.0:
-                    st.history[s, i, CONTACT_NORMAL] = vec3(0.0)
-                    move -= pushed * n_i
-                    pushed = 0.0
-                st.history[s, i, FRICTION_PUSH].x = pushed
+            # what a held contact does not move by is its surface's reaction (friction's budget)
+            move += held_reaction(s, i, pull, fl, md, st)
         st.x[s, i] += move
         st.dx[s, i] += move
         e_before = e
@@ -170,10 +228,12 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
             c = e.dot(e) - l2
             st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
             if ti.static(fl.contacts):
-                held = 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st) + inverse_mass_times(s, j + 1, g, fl, md, st))
-                              + slide)
+                # whether the edge can change length with its nodes held on their surfaces
+                held = 4.0 * (g.dot(sliding_inverse_mass_times(s, j, g, fl, md, st)
+                                    + sliding_inverse_mass_times(s, j + 1, g, fl, md, st)) + slide)
                 if held >= HOLD_BELOW * st.diag[s, j]:
-                    st.diag[s, j] = held
+                    st.diag[s, j] = 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st)
+                                                 + inverse_mass_times(s, j + 1, g, fl, md, st)) + slide)
                 else:  # this edge cannot change length with its contacts held: they go free
                     st.history[s, j, CONTACT_NORMAL] = vec3(0.0)
                     st.history[s, j + 1, CONTACT_NORMAL] = vec3(0.0)
@@ -258,12 +318,19 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
         first = untouched_prediction(s, n, sc.h, md, st)
         if ti.static(not fl.contacts):
             restart = first
+    settled = 0  # 1: friction settles at the next contact pass, 2: it has (FRICTION_SETTLED)
+    just_settled = 0
     if ti.static(fl.contacts):
         # friction's cone holds on the step's totals; the clearances, less the colliders' moves
         strand_reset_friction(s, st, collider_travel(s, k, sc.stride, fl, md, st, dr))
     while True:
         if ti.static(fl.contacts):
-            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co)
+            just_settled = 0
+            if settled == 1:
+                settle_friction(s, n, fl, st)
+                settled = 2
+                just_settled = 1
+            strand_collide(s, now, prev, k + 1, k, sc.n_analytic, fl, md, st, dr, co, False, settled)
             if ti.static(fl.shake):
                 if first:
                     # a collider pushed the strand at the step's start: this step is the fast
@@ -283,8 +350,11 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
                 if turned == 2:
                     restart_from_prediction(s, n, sc.h, md, st)
                 res, _ = assemble_projection(s, n, shake, sc.h, fl, md, st, dr)
+        if ti.static(fl.contacts):
+            if res < FRICTION_SETTLED and settled == 0:
+                settled = 1
         if (res < sc.projection_tol or it >= sc.projection_iterations
-                or (it >= 1 and not switched and res < STALL_BELOW and res > 0.9 * previous)):
+                or (it >= 1 and not switched and not just_settled and res < STALL_BELOW and res > 0.9 * previous)):
             break
         solve_inextensibility(s, n, shake, sc.h, fl, md, st, dr)
         it += 1
