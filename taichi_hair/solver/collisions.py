@@ -176,7 +176,7 @@ def note_clearance(s, i, d, margin, group, springs: ti.template(), st: ti.templa
 
 
 # A collider's surface as contact_with_friction takes it: its margin [m], friction coefficient,
-# and whether friction has settled for the step (1: pushes only, projection.FRICTION_SETTLED)
+# and whether friction has settled for the step (nonzero: pushes only, projection.FRICTION_SETTLED)
 ContactSurface = ti.types.struct(margin=float, friction=float, settled=ti.i32)
 
 
@@ -309,8 +309,8 @@ def strand_collide(s, now, prev, tool_now, tool_prev, n_analytic, fl: ti.templat
     the Simulator warns about every skipped (strand, collider) pair at construction. A pushed
     node's step displacement dx becomes x - x_prev. With springs (the implicit step's length
     correction) nothing moves: each push deeper than SPRING_PUSH of the node's edge becomes a
-    spring to its target in the correction's system (contact_spring; place_contact). With
-    settled = 1 friction has settled for the step: nodes are only pushed out
+    spring to its target in the correction's system (contact_spring; place_contact). Once
+    friction has settled for the step (settled nonzero) nodes are only pushed out
     (contact_with_friction). Returns the number of pushes."""
     pushes = 0
     x, x_prev, head = ti.static(st.x, st.x_prev, dr.head)  # aliases
