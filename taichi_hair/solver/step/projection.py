@@ -299,7 +299,8 @@ def strand_project(s, k, fl: ti.template(), sc, md: ti.template(), st: ti.templa
     taut stretch: the step then starts again from the prediction with the current gradient;
     only in a step's first projection of a scene without colliders, untouched_prediction);
     a strand that a collider pushes at the start of its step's first projection takes the fast
-    projection for that step.
+    projection for that step. Friction is decided in every contact pass until the residual is
+    below FRICTION_SETTLED, and then settles for the step (settle_friction).
     Ends when max_j |C_j| / |ebar^j|^2 < projection_tol after contacts, at
     projection_iterations, or at a stall (an iteration removing less than 10 % of a residual
     already below STALL_BELOW: the precision's rounding floor; far from satisfied, slow progress
