@@ -189,22 +189,23 @@ def contact_with_friction(s, i, on_head, head: ti.template(), now, local, local_
     back, so a node touching a head and a world collider in one step keeps one budget; `contact`
     names the collider (held_by). Once friction has settled (surface.settled) the node is only
     pushed out, its shift and grip kept. Returns the moved point in the world."""
-    shift = st.history[s, i, FRICTION_SHIFT]
-    if on_head:
-        shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
+    push = st.history[s, i, FRICTION_PUSH]
     moved = local + (surface.margin - d) * n
-    total = st.history[s, i, FRICTION_PUSH].x + surface.margin - d
-    grip = st.history[s, i, FRICTION_PUSH].z
-    if not surface.settled:
+    if surface.settled:
+        st.history[s, i, FRICTION_PUSH] = vec3(push.x + surface.margin - d, contact, push.z)
+    else:
+        shift = st.history[s, i, FRICTION_SHIFT]
+        if on_head:
+            shift = unrotate_rows(head[now, 0], head[now, 1], head[now, 2], shift)
         moved, shift, total, grip = resolve_contact(local, local_prev, d, n, surface.margin, surface.friction, shift,
-                                                    st.history[s, i, FRICTION_PUSH].x)
+                                                    push.x)
+        if on_head:
+            shift = head_rotate(head, now, shift)
+        st.history[s, i, FRICTION_SHIFT] = shift
+        # -grip: held by static friction, stuck once friction settles (projection.settle_friction)
+        st.history[s, i, FRICTION_PUSH] = vec3(total, contact, -grip)
     if on_head:
-        shift = head_rotate(head, now, shift)
         moved = from_head(head, now, moved)
-    st.history[s, i, FRICTION_SHIFT] = shift
-    if not surface.settled:
-        grip = -grip  # held by static friction: stuck once friction settles (projection.settle_friction)
-    st.history[s, i, FRICTION_PUSH] = vec3(total, contact, grip)
     return moved
 
 

@@ -112,12 +112,18 @@ def sliding_inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st
 
 
 @ti.func
-def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
-    """sliding_inverse_mass_times, STUCK_MOBILITY times that for a stuck node (contact_grip)."""
-    move = sliding_inverse_mass_times(s, i, v, fl, md, st)
+def contact_mobility(s, i, fl: ti.template(), st: ti.template()):
+    """STUCK_MOBILITY for a stuck node (contact_grip), else 1: the factor on its inverse mass."""
+    mobility = 1.0
     if contact_grip(s, i, fl, st) > 0.0:
-        move *= STUCK_MOBILITY
-    return move
+        mobility = STUCK_MOBILITY
+    return mobility
+
+
+@ti.func
+def inverse_mass_times(s, i, v, fl: ti.template(), md: ti.template(), st: ti.template()):
+    """sliding_inverse_mass_times scaled by contact_mobility."""
+    return contact_mobility(s, i, fl, st) * sliding_inverse_mass_times(s, i, v, fl, md, st)
 
 
 @ti.func
@@ -229,11 +235,11 @@ def assemble_projection(s, n, shake, h, fl: ti.template(), md: ti.template(), st
             st.diag[s, j] = 4.0 * (g.dot(g) * w + slide)
             if ti.static(fl.contacts):
                 # whether the edge can change length with its nodes held on their surfaces
-                held = 4.0 * (g.dot(sliding_inverse_mass_times(s, j, g, fl, md, st)
-                                    + sliding_inverse_mass_times(s, j + 1, g, fl, md, st)) + slide)
-                if held >= HOLD_BELOW * st.diag[s, j]:
-                    st.diag[s, j] = 4.0 * (g.dot(inverse_mass_times(s, j, g, fl, md, st)
-                                                 + inverse_mass_times(s, j + 1, g, fl, md, st)) + slide)
+                sliding_j = g.dot(sliding_inverse_mass_times(s, j, g, fl, md, st))
+                sliding_next = g.dot(sliding_inverse_mass_times(s, j + 1, g, fl, md, st))
+                if 4.0 * (sliding_j + sliding_next + slide) >= HOLD_BELOW * st.diag[s, j]:
+                    st.diag[s, j] = 4.0 * (contact_mobility(s, j, fl, st) * sliding_j
+                                           + contact_mobility(s, j + 1, fl, st) * sliding_next + slide)
                 else:  # this edge cannot change length with its contacts held: they go free
                     st.history[s, j, CONTACT_NORMAL] = vec3(0.0)
                     st.history[s, j + 1, CONTACT_NORMAL] = vec3(0.0)
