@@ -131,8 +131,8 @@ def accuracy_rows(scene, seconds: float, reference_dt: float, frame_s: float, lo
     target = tips(reference)
     for integrator in ("explicit", "implicit"):
         # warm-up, not timed: a frame's launches and a single step's, another kernel variant with
-        # a moving head, which the timed runs take where a frame's steps do not divide theirs
-        # (its compile read as 30 s of stepping at 16 ms)
+        # a moving head, which a timed run takes where a frame's steps do not divide its own;
+        # compiled there, the implicit step's tens of seconds would count as stepping
         warm = _quiet_simulator(scene, max(steps_ms) * 1e-3, integrator)
         run_for(warm, 3 * frame_s, frame_s)
         warm.step(1)
