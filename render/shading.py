@@ -334,23 +334,27 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
         edge, _ = sub_pixel_edge(pixels, slot)
         c = vec3f(0.0, 0.0, 0.0)
         any_mesh = key != empty_key()
+        # one loop over the pixel's samples, its centre or its EDGE_SAMPLES^2 sub-pixels, so that
+        # mesh_sample is inlined once: unrolled per sub-pixel it made this kernel's front end
+        # take a second of every run's start and its compile on a cold cache as much again
+        n_samples = 1
+        weight = f32(1.0)
         if edge == 1:
             any_mesh = True
-            for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
-                k = sub_key[slot, dy * EDGE_SAMPLES + dx]
-                if k != empty_key():
-                    p2 = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
-                               ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
-                    c += f32(1.0 / EDGE_SAMPLES ** 2) * mesh_sample(
-                        k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm, sparams,
-                        first)
-                elif first:
-                    c += f32(1.0 / EDGE_SAMPLES ** 2) * background
-        elif any_mesh:
-            c = mesh_sample(key, pixel_centre(px, py), mesh, eye, to_light, light, ambient, sview,
-                            sproj, sm, sparams, first)
-        else:
-            c = background
+            n_samples = EDGE_SAMPLES * EDGE_SAMPLES
+            weight = f32(1.0 / EDGE_SAMPLES ** 2)
+        for j in range(n_samples):
+            k = key
+            p2 = pixel_centre(px, py)
+            if edge == 1:
+                k = sub_key[slot, j]
+                p2 = vec2f(ti.cast(px, f32) + (ti.cast(j % EDGE_SAMPLES, f32) + f32(0.5)) / f32(EDGE_SAMPLES * 1.0),
+                           ti.cast(py, f32) + (ti.cast(j // EDGE_SAMPLES, f32) + f32(0.5)) / f32(EDGE_SAMPLES * 1.0))
+            if k != empty_key():
+                c += weight * mesh_sample(k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm,
+                                          sparams, first)
+            elif first:
+                c += weight * background
         if first:
             base[py, px] = c
         elif any_mesh:
