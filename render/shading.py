@@ -334,9 +334,9 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
         edge, _ = sub_pixel_edge(pixels, slot)
         c = vec3f(0.0, 0.0, 0.0)
         any_mesh = key != empty_key()
-        # one loop over the pixel's samples, its centre or its EDGE_SAMPLES^2 sub-pixels, so that
-        # mesh_sample is inlined once: unrolled per sub-pixel it made this kernel's front end
-        # take a second of every run's start and its compile on a cold cache as much again
+        # one run-time loop over the pixel's samples (its centre, or its EDGE_SAMPLES^2
+        # sub-pixels) inlines mesh_sample once; a static loop inlines it per sub-pixel, which
+        # multiplies this kernel's compile on a cold cache and its front end on every start
         n_samples = 1
         weight = f32(1.0)
         if edge == 1:
