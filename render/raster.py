@@ -82,6 +82,15 @@ def pixel_centre(px: ti.i32, py: ti.i32) -> vec2f:
 
 
 @ti.func
+def sub_pixel_centre(px: ti.i32, py: ti.i32, j: ti.i32) -> vec2f:
+    """The centre of sub-pixel j (row-major, EDGE_SAMPLES per side) of pixel (px, py): where
+    `raster_edge_samples` takes the meshes' depths and `shading.shade_mesh` shades them."""
+    side = f32(EDGE_SAMPLES * 1.0)
+    return vec2f(ti.cast(px, f32) + (ti.cast(j % EDGE_SAMPLES, f32) + f32(0.5)) / side,
+                 ti.cast(py, f32) + (ti.cast(j // EDGE_SAMPLES, f32) + f32(0.5)) / side)
+
+
+@ti.func
 def edge(a: vec2f, b: vec2f, p: vec2f) -> f32:
     """Twice the signed area of (a, b, p)."""
     return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
@@ -232,8 +241,7 @@ def raster_edge_samples(n: ti.i32, screen: ti.types.ndarray(dtype=vec4f, ndim=1)
                     slot = edge_index[py, px]
                     if slot >= 0:
                         for dy, dx in ti.static(ti.ndrange(EDGE_SAMPLES, EDGE_SAMPLES)):
-                            p = vec2f(ti.cast(px, f32) + f32((dx + 0.5) / EDGE_SAMPLES),
-                                      ti.cast(py, f32) + f32((dy + 0.5) / EDGE_SAMPLES))
+                            p = sub_pixel_centre(px, py, dy * EDGE_SAMPLES + dx)
                             w = barycentric(a, b, c, p)
                             if w[0] >= f32(0.0) and w[1] >= f32(0.0) and w[2] >= f32(0.0):
                                 q = perspective_weights(a, b, c, w)

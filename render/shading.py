@@ -22,7 +22,7 @@ from .bundles import HairArgs, MeshArgs, MeshPixelArgs, ShadowMapArgs
 from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_prim, perspective_weights, pixel_centre,
-                     sub_pixel_edge, vec2f)
+                     sub_pixel_centre, sub_pixel_edge)
 from .runtime import buffer, ensure_init, upload
 from .shadows import filtered_transmittance
 
@@ -348,8 +348,7 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
             p2 = pixel_centre(px, py)
             if edge == 1:
                 k = sub_key[slot, j]
-                p2 = vec2f(ti.cast(px, f32) + (ti.cast(j % EDGE_SAMPLES, f32) + f32(0.5)) / f32(EDGE_SAMPLES * 1.0),
-                           ti.cast(py, f32) + (ti.cast(j // EDGE_SAMPLES, f32) + f32(0.5)) / f32(EDGE_SAMPLES * 1.0))
+                p2 = sub_pixel_centre(px, py, j)
             if k != empty_key():
                 c += weight * mesh_sample(k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm,
                                           sparams, first)
