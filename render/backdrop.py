@@ -18,7 +18,9 @@ from .camera import Camera, f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import EDGE_SAMPLES, empty_key, sub_pixel_edge
 from .shading import shade_surface
+from .runtime import on_cpu
 from .shadows import filtered_transmittance
+from .threads import spread, spread_item
 
 
 def _vec3(name: str, value) -> np.ndarray:
@@ -85,27 +87,47 @@ def shade_backdrop(pixels: MeshPixelArgs, cam_to_world: mat4f, proj: vec4f, plan
     shadowed by its map sview, sproj, sm, sparams) plus `ambient` (zero after the first light)
     times the pixel's background fraction. cam_to_world, proj: the camera (`camera_to_world`,
     `Camera.matrices` at the frame's scale); plane: the wall (`Backdrop.plane`); albedo:
-    linear. One thread per pixel."""
+    linear. One thread per pixel (CPU: per row)."""
+    height, width = pixels.pixel_base.shape[0], pixels.pixel_base.shape[1]
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(height)
+        for t in range(span * factor):
+            py = spread_item(t, span, factor, height)
+            if py >= 0:
+                for px in range(width):
+                    shade_backdrop_pixel(pixels, cam_to_world, proj, plane, albedo, to_light, light,
+                                         ambient, sview, sproj, sm, sparams, px, py)
+    else:
+        for py, px in ti.ndrange(height, width):
+            shade_backdrop_pixel(pixels, cam_to_world, proj, plane, albedo, to_light, light,
+                                 ambient, sview, sproj, sm, sparams, px, py)
+
+
+@ti.func
+def shade_backdrop_pixel(pixels: ti.template(), cam_to_world: mat4f, proj: vec4f, plane: vec4f,
+                         albedo: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f,
+                         sview: mat4f, sproj: vec4f, sm: ti.template(), sparams: vec4f,
+                         px: ti.i32, py: ti.i32):
+    """`shade_backdrop` for pixel (px, py)."""
     base = ti.static(pixels.pixel_base)
     origin = cam_to_world @ vec4f(0.0, 0.0, 0.0, 1.0)
     eye = vec3f(origin[0], origin[1], origin[2])
     n = vec3f(plane[0], plane[1], plane[2])
-    for py, px in base:
-        frac = background_fraction(pixels, px, py)
-        if frac > 0.0:
-            cam = vec4f((ti.cast(px, f32) + f32(0.5) - proj[1]) / proj[0],
-                        -(ti.cast(py, f32) + f32(0.5) - proj[2]) / proj[0], f32(-1.0), f32(0.0))
-            w = cam_to_world @ cam
-            d = unit(vec3f(w[0], w[1], w[2]))
-            facing = n.dot(d)
-            shadow = f32(1.0)
-            if facing < 0.0:   # the ray meets the wall's front in front of the eye
-                t = -(n.dot(eye) + plane[3]) / facing
-                if t > 0.0:
-                    p = eye + t * d
-                    # off the wall by two shadow texels, as the meshes, against self-shadowing
-                    shadow = filtered_transmittance(p + n * (f32(2.0) * sparams[3]), sview,
-                                                    sproj, sm, sparams)
-            c = shade_surface(n, to_light, -d, albedo, light, ambient, shadow, f32(0.0),
-                              f32(1.0))
-            base[py, px] = base[py, px] + frac * c   # one thread per pixel: no atomic add
+    frac = background_fraction(pixels, px, py)
+    if frac > 0.0:
+        cam = vec4f((ti.cast(px, f32) + f32(0.5) - proj[1]) / proj[0],
+                    -(ti.cast(py, f32) + f32(0.5) - proj[2]) / proj[0], f32(-1.0), f32(0.0))
+        w = cam_to_world @ cam
+        d = unit(vec3f(w[0], w[1], w[2]))
+        facing = n.dot(d)
+        shadow = f32(1.0)
+        if facing < 0.0:   # the ray meets the wall's front in front of the eye
+            t = -(n.dot(eye) + plane[3]) / facing
+            if t > 0.0:
+                p = eye + t * d
+                # off the wall by two shadow texels, as the meshes, against self-shadowing
+                shadow = filtered_transmittance(p + n * (f32(2.0) * sparams[3]), sview,
+                                                sproj, sm, sparams)
+        c = shade_surface(n, to_light, -d, albedo, light, ambient, shadow, f32(0.0),
+                          f32(1.0))
+        base[py, px] = base[py, px] + frac * c   # one thread per pixel: no atomic add

@@ -9,6 +9,7 @@ from .bundles import FibreTableArgs, HairArgs, LightSetArgs
 from .camera import f32, unit, vec3f, vec4f
 from .fibre_dual import DualConstants, dual_constants, dual_scattering_c
 from .fibre_lobes import fexp, fibre_constants, fibre_light, fibre_view, lobe_variance, sigma_coord
+from .threads import spread, spread_item
 
 # shading stride 2 interpolates a vertex only where its strand turns by at most this [deg]:
 # shading follows the tangent, and on the benchmark's wavy hair (11 px segments at 1280x720)
@@ -33,7 +34,8 @@ def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: Li
     view's part of the shading is computed once for all lights; the lights add in order after
     the first (with the ambient), as separate passes would. masked: only vertices with
     mark[i] > 0 (the others' rgba is left as it was). Shapes (V,). n_chunks threads, each
-    over a run of vertices."""
+    over a run of vertices, the runs in `threads.spread`'s mixed order (the vertices to shade
+    come in runs: in order, one CPU thread would get most of them)."""
     x, nbr, sigma, beta_m, mark, rgba = ti.static(hair.hair_x, hair.hair_nbr, hair.hair_sigma,
                                                   hair.hair_beta_m, hair.hair_mark, hair.hair_rgba)
     to_light, irradiance, terms = ti.static(lights.light_to, lights.light_irradiance,
@@ -45,7 +47,11 @@ def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: Li
     # (table coordinates, lobe constants, dual scattering's) only when they change; the same
     # inputs give the same bits, so the result does not depend on the runs
     chunk = (n + n_chunks - 1) // n_chunks
-    for ch in range(n_chunks):
+    span, factor = spread(n_chunks)
+    for step in range(span * factor):
+        ch = spread_item(step, span, factor, n_chunks)
+        if ch < 0:
+            continue
         sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
         us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
         dc = DualConstants(bf2=vec3f(0.0, 0.0, 0.0), a_back=vec3f(0.0, 0.0, 0.0),

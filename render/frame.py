@@ -218,7 +218,7 @@ def _light_passes(hd, md, hair, directional, ambient, bg, eye, pixels, settings,
                            sm, smap.params)
         if fibre:
             points_shadow_terms(hd["n_vertices"], hd["x"], smap.view, smap.proj, sm, smap.params,
-                                int(masked), hd["mark"], k, terms)
+                                int(masked), hd["mark"], k, chunks(hd["n_vertices"], 4096, 1), terms)
         elif hd["n_vertices"]:
             _shade_hair_kajiya_kay(hd, eye, light, ambient, k == 0, settings, smap, masked)
     if fibre:

@@ -26,6 +26,7 @@ import taichi as ti
 
 from .camera import f32, vec3f, vec4f
 from .runtime import on_cpu
+from .threads import spread, spread_item
 
 vec2f = ti.types.vector(2, ti.f32)
 vec3i = ti.types.vector(3, ti.i32)
@@ -67,10 +68,13 @@ def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
 
 @ti.kernel
 def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
-    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
-        for i in range(key.shape[0]):
-            for j in range(key.shape[1]):
-                key[i, j] = empty_key()
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(key.shape[0])
+        for t in range(span * factor):
+            i = spread_item(t, span, factor, key.shape[0])
+            if i >= 0:
+                for j in range(key.shape[1]):
+                    key[i, j] = empty_key()
     else:
         for i, j in key:
             key[i, j] = empty_key()
@@ -153,12 +157,15 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
     8 neighbours differs in showing a mesh, in depth by over 2 %, or in which mesh it shows
     (part (F,): each face's mesh; where a neck meets a body, depth is continuous but the
     surfaces cross); -1 elsewhere (and past `capacity` slots). The slot's EDGE_SAMPLES^2 keys
-    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row)."""
+    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row, `runtime.on_cpu`)."""
     height, width = mesh_key.shape[0], mesh_key.shape[1]
-    if ti.static(on_cpu()):
-        for py in range(height):
-            for px in range(width):
-                mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(height)
+        for t in range(span * factor):
+            py = spread_item(t, span, factor, height)
+            if py >= 0:
+                for px in range(width):
+                    mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
     else:
         for py, px in mesh_key:
             mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
@@ -455,11 +462,14 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
     (a little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
     faster than three bytes, and a 1-D array faster than a 2-D one, `unpack_image`); table:
     `srgb_table()`. One thread per output
-    pixel (CPU: per row)."""
-    if ti.static(on_cpu()):
-        for py in range(out_alpha.shape[0]):
-            for px in range(out_alpha.shape[1]):
-                finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
+    pixel (CPU: per row, `runtime.on_cpu`)."""
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(out_alpha.shape[0])
+        for t in range(span * factor):
+            py = spread_item(t, span, factor, out_alpha.shape[0])
+            if py >= 0:
+                for px in range(out_alpha.shape[1]):
+                    finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
     else:
         for py, px in out_alpha:
             finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)

@@ -23,8 +23,9 @@ from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_prim, perspective_weights, pixel_centre,
                      sub_pixel_centre, sub_pixel_edge)
-from .runtime import buffer, ensure_init, upload
+from .runtime import buffer, ensure_init, on_cpu, upload
 from .shadows import filtered_transmittance
+from .threads import spread, spread_item
 
 vec8f = ti.types.vector(8, ti.f32)
 
@@ -325,36 +326,55 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
     Edges are anti-aliased: such a pixel whose sub-pixels disagree (mesh and background, a
     depth step of over 2 %: a silhouette, or two meshes: where they cross;
     `raster.sub_pixel_edge`) is the mean of its sub-pixels, each shaded on its own face; any
-    other pixel is shaded once at its centre. One thread per pixel."""
+    other pixel is shaded once at its centre. One thread per pixel (CPU: per row)."""
+    height, width = pixels.pixel_base.shape[0], pixels.pixel_base.shape[1]
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(height)
+        for t in range(span * factor):
+            py = spread_item(t, span, factor, height)
+            if py >= 0:
+                for px in range(width):
+                    shade_mesh_pixel(pixels, mesh, eye, to_light, light, ambient, background, sview,
+                                     sproj, sm, sparams, first, px, py)
+    else:
+        for py, px in ti.ndrange(height, width):
+            shade_mesh_pixel(pixels, mesh, eye, to_light, light, ambient, background, sview, sproj,
+                             sm, sparams, first, px, py)
+
+
+@ti.func
+def shade_mesh_pixel(pixels: ti.template(), mesh: ti.template(), eye: vec3f, to_light: vec3f,
+                     light: vec3f, ambient: vec3f, background: vec3f, sview: mat4f, sproj: vec4f,
+                     sm: ti.template(), sparams: vec4f, first: ti.i32, px: ti.i32, py: ti.i32):
+    """`shade_mesh` for pixel (px, py)."""
     mesh_key, edge_index, sub_key, base = ti.static(pixels.pixel_key, pixels.pixel_edge_index,
                                                     pixels.pixel_sub_key, pixels.pixel_base)
-    for py, px in base:
-        key = mesh_key[py, px]
-        slot = edge_index[py, px]
-        edge, _ = sub_pixel_edge(pixels, slot)
-        c = vec3f(0.0, 0.0, 0.0)
-        any_mesh = key != empty_key()
-        # one run-time loop over the pixel's samples (its centre, or its EDGE_SAMPLES^2
-        # sub-pixels) inlines mesh_sample once; a static loop inlines it per sub-pixel, which
-        # multiplies this kernel's compile on a cold cache and its front end on every start
-        n_samples = 1
-        weight = f32(1.0)
+    key = mesh_key[py, px]
+    slot = edge_index[py, px]
+    edge, _ = sub_pixel_edge(pixels, slot)
+    c = vec3f(0.0, 0.0, 0.0)
+    any_mesh = key != empty_key()
+    # one run-time loop over the pixel's samples (its centre, or its EDGE_SAMPLES^2
+    # sub-pixels) inlines mesh_sample once; a static loop inlines it per sub-pixel, which
+    # multiplies this kernel's compile on a cold cache and its front end on every start
+    n_samples = 1
+    weight = f32(1.0)
+    if edge == 1:
+        any_mesh = True
+        n_samples = EDGE_SAMPLES * EDGE_SAMPLES
+        weight = f32(1.0 / EDGE_SAMPLES ** 2)
+    for j in range(n_samples):
+        k = key
+        p2 = pixel_centre(px, py)
         if edge == 1:
-            any_mesh = True
-            n_samples = EDGE_SAMPLES * EDGE_SAMPLES
-            weight = f32(1.0 / EDGE_SAMPLES ** 2)
-        for j in range(n_samples):
-            k = key
-            p2 = pixel_centre(px, py)
-            if edge == 1:
-                k = sub_key[slot, j]
-                p2 = sub_pixel_centre(px, py, j)
-            if k != empty_key():
-                c += weight * mesh_sample(k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm,
-                                          sparams, first)
-            elif first:
-                c += weight * background
-        if first:
-            base[py, px] = c
-        elif any_mesh:
-            base[py, px] = base[py, px] + c   # one thread per pixel: no atomic add
+            k = sub_key[slot, j]
+            p2 = sub_pixel_centre(px, py, j)
+        if k != empty_key():
+            c += weight * mesh_sample(k, p2, mesh, eye, to_light, light, ambient, sview, sproj, sm,
+                                      sparams, first)
+        elif first:
+            c += weight * background
+    if first:
+        base[py, px] = c
+    elif any_mesh:
+        base[py, px] = base[py, px] + c   # one thread per pixel: no atomic add

@@ -20,6 +20,7 @@ from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
 from .runtime import buffer, chunks, on_cpu, upload
+from .threads import spread, spread_item
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -89,10 +90,13 @@ def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
                  fixed: ti.types.ndarray(dtype=ti.i64, ndim=3), full: ti.i32):
     """z0 = empty (no hair in front); full: also opacity and the fixed-point slabs = 0
     (otherwise `accumulate_slabs` of the last map left fixed at 0 and overwrites opacity)."""
-    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
-        for i in range(z0.shape[0]):
-            for j in range(z0.shape[1]):
-                clear_texel(z0, opacity, fixed, full, i, j)
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(z0.shape[0])
+        for t in range(span * factor):
+            i = spread_item(t, span, factor, z0.shape[0])
+            if i >= 0:
+                for j in range(z0.shape[1]):
+                    clear_texel(z0, opacity, fixed, full, i, j)
     else:
         for i, j in z0:
             clear_texel(z0, opacity, fixed, full, i, j)
@@ -199,10 +203,13 @@ def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
     """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end
     (from the fixed-point sums), and set the sums back to 0 for the next map: zeroing them
     here, while their cache lines are loaded, spares the next map a pass over them."""
-    if ti.static(on_cpu()):   # a row per thread (`runtime.on_cpu`)
-        for i in range(opacity.shape[0]):
-            for j in range(opacity.shape[1]):
-                accumulate_texel(fixed, opacity, i, j)
+    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
+        span, factor = spread(opacity.shape[0])
+        for t in range(span * factor):
+            i = spread_item(t, span, factor, opacity.shape[0])
+            if i >= 0:
+                for j in range(opacity.shape[1]):
+                    accumulate_texel(fixed, opacity, i, j)
     else:
         for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
             accumulate_texel(fixed, opacity, i, j)
@@ -312,13 +319,18 @@ def filtered_transmittance(p: vec3f, view: mat4f, proj: vec4f, sm: ti.template()
 def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), view: mat4f,
                         proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,
                         mark: ti.types.ndarray(dtype=ti.i32, ndim=1), row: ti.i32,
-                        out: ti.types.ndarray(dtype=vec3f, ndim=2)):
+                        n_chunks: ti.i32, out: ti.types.ndarray(dtype=vec3f, ndim=2)):
     """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
-    where mark[i] > 0. One thread per point."""
-    for k in range(n):
-        if masked and mark[k] <= 0:
-            continue
-        out[row, k] = shadow_terms(x[k], view, proj, sm, params)
+    where mark[i] > 0. n_chunks threads, each over a run of points, the runs in
+    `threads.spread`'s mixed order (marked points come in runs)."""
+    chunk = (n + n_chunks - 1) // n_chunks
+    span, factor = spread(n_chunks)
+    for step in range(span * factor):
+        c = spread_item(step, span, factor, n_chunks)
+        if c >= 0:
+            for k in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+                if not masked or mark[k] > 0:
+                    out[row, k] = shadow_terms(x[k], view, proj, sm, params)
 
 
 @ti.kernel
@@ -344,14 +356,17 @@ def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), n_chunks: 
         box[k] = f32(3.0e38)
         box[k + 3] = f32(-3.0e38)
     chunk = (n + n_chunks - 1) // n_chunks
-    for c in range(n_chunks):
-        lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
-        for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
-            lo = ti.min(lo, x[i])
-            hi = ti.max(hi, x[i])
-        for k in ti.static(range(3)):
-            ti.atomic_min(box[k], lo[k])
-            ti.atomic_max(box[k + 3], hi[k])
+    span, factor = spread(n_chunks)   # fewer chunks than 512 per CPU thread: spread them
+    for step in range(span * factor):
+        c = spread_item(step, span, factor, n_chunks)
+        if c >= 0:
+            lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
+            for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+                lo = ti.min(lo, x[i])
+                hi = ti.max(hi, x[i])
+            for k in ti.static(range(3)):
+                ti.atomic_min(box[k], lo[k])
+                ti.atomic_max(box[k + 3], hi[k])
 
 
 def _scene_sphere(parts: list[dict]) -> tuple[np.ndarray, float]:

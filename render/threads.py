@@ -8,20 +8,27 @@ even iterations ran on one thread, 1,200 on two). Screen tiles differ in work by
 fills the middle of the picture), so a loop over them in screen order leaves one thread with
 most of it.
 
+The same holds for any loop of fewer than 512 iterations per thread (the rows of an image or
+a shadow map: 480 rows ran on one thread), and for pixels or vertices whose work is uneven
+(the mesh fills the bottom of the picture, the shaded hair vertices lie in runs).
+
 `mixed(u, span)` visits the items of a loop in a well-mixed order: item (u x P) mod span for
 span a power of two and P the odd number nearest span / golden ratio, so any contiguous run of
 iterations touches items spread evenly over the whole range (and so over the screen). The loop
 runs over span x factor iterations, every factor-th one doing an item, so that each thread's
-block has its share even when the items are fewer than 512 per thread:
+block has its share even when the items are fewer than 512 per thread (`spread_item`):
 
     span, factor = spread(n)
     for t in range(span * factor):
-        if t % factor == 0:
-            item = mixed(t // factor, span)
-            if item < n:
-                ...
+        item = spread_item(t, span, factor, n)
+        if item >= 0:
+            ...
 
-On a GPU the factor is 1 and the order changes nothing but which thread does what.
+Items are rows or runs of consecutive pixels or vertices, each walked in order by one thread,
+so memory is still read in order within an item.
+
+On a GPU the factor is 1 and `spread_item` keeps the items in order (`mixed` alone changes nothing
+but which thread does what).
 """
 
 import taichi as ti
@@ -53,3 +60,19 @@ def mixed(u, span):
     (u x P) mod span with P odd, a permutation of [0, span)."""
     stride = ti.cast(ti.cast(span, ti.f32) * ti.f32(0.6180339887), ti.i64) | 1
     return ti.cast((ti.cast(u, ti.i64) * stride) & ti.cast(span - 1, ti.i64), ti.i32)
+
+
+@ti.func
+def spread_item(t, span, factor, n):
+    """The item that iteration t of a loop over span x factor iterations (`spread(n)`) does:
+    mixed(t // factor, span) on every factor-th iteration where that is below n, else -1. On a
+    GPU the factor is 1 and items keep their order (t itself): neighbouring threads then read
+    neighbouring items, as the GPU's memory wants."""
+    item = -1
+    if t % factor == 0:
+        u = t // factor
+        if ti.static(cpu_threads() > 0):
+            u = mixed(u, span)
+        if u < n:
+            item = u
+    return item

@@ -29,7 +29,7 @@ import taichi as ti
 
 from .bundles import HairArgs, TileBinArgs
 from .camera import f32, vec3f, vec4f
-from .threads import mixed, spread
+from .threads import mixed, spread, spread_item
 
 vec4i = ti.types.vector(4, ti.i32)
 
@@ -79,16 +79,19 @@ def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
     out[0] = f32(3.0e38)
     out[1] = f32(-3.0e38)
     chunk = (n + n_chunks - 1) // n_chunks
-    for c in range(n_chunks):
-        lo, hi = f32(3.0e38), f32(-3.0e38)
-        for e in range(c * chunk, ti.min(n, (c + 1) * chunk)):
-            a, b = screen[seg[e]], screen[seg[e] + 1]
-            if ti.min(a[2], b[2]) > near:
-                z = f32(0.5) * (a[2] + b[2])
-                lo = ti.min(lo, z)
-                hi = ti.max(hi, z)
-        ti.atomic_min(out[0], lo)
-        ti.atomic_max(out[1], hi)
+    span, factor = spread(n_chunks)   # fewer chunks than 512 per CPU thread: spread them
+    for step in range(span * factor):
+        c = spread_item(step, span, factor, n_chunks)
+        if c >= 0:
+            lo, hi = f32(3.0e38), f32(-3.0e38)
+            for e in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+                a, b = screen[seg[e]], screen[seg[e] + 1]
+                if ti.min(a[2], b[2]) > near:
+                    z = f32(0.5) * (a[2] + b[2])
+                    lo = ti.min(lo, z)
+                    hi = ti.max(hi, z)
+            ti.atomic_min(out[0], lo)
+            ti.atomic_max(out[1], hi)
 
 
 @ti.kernel

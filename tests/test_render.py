@@ -678,8 +678,8 @@ def _visit_mixed(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1),
                  when: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
     span, factor = render.threads.spread(n)
     for step in range(span * factor):
-        item = render.threads.mixed(step // factor, span)
-        if step % factor == 0 and item < n:
+        item = render.threads.spread_item(step, span, factor, n)
+        if item >= 0:
             ti.atomic_add(seen[item], 1)
             when[item] = step
     return span * factor
@@ -687,7 +687,8 @@ def _visit_mixed(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1),
 
 @pytest.mark.parametrize("n", [1, 7, 300, 1200, 4096, 5000])
 def test_mixed_loop_order_visits_every_item_once_and_spreads_runs(n):
-    """The tiles' loop order (`render.threads`) is a permutation: every item once. And it mixes:
+    """The spread loop order (`render.threads.spread_item`: tiles, image and map rows, runs of
+    vertices) is a permutation: every item once. And it mixes:
     the first half of the iterations (one CPU thread's block on 2 threads) holds items from
     every quarter of the range (the screen), in about equal numbers."""
     seen, when = ti.ndarray(ti.i32, (n,)), ti.ndarray(ti.i32, (n,))
