@@ -86,6 +86,10 @@ class RodSystem:
         check_strand_geometry(x, self.groom.node_counts)
         if not self.extensible:
             self._check_stretch(x)
+        self._place(x)
+
+    def _place(self, x: np.ndarray) -> None:
+        """`set_positions` without its checks: x [S, N, 3] float64 m, known to be valid."""
         self.state.x.from_numpy(x)
         self.update_frames()
 
@@ -212,10 +216,16 @@ class RodSystem:
         """d^2 E / dx^2 [len(strands), 3 n, 3 n] N/m of the listed strands at positions x0
         [S, N, 3] m (n the largest of their node counts), from central differences of
         `elastic_forces` with step h [m] (material angles held as they are). Node 0 is held: its
-        columns stay zero. Positions and frames are x0's afterwards."""
-        x0 = np.asarray(x0, dtype=np.float64)
+        columns stay zero. Positions and frames are x0's afterwards. h in (0, 1e-3 x the
+        shortest edge]: x0 is checked as `set_positions` checks, the moved positions are not
+        (the checks cost more than the force evaluations, two per column)."""
+        x0 = self._checked_nodes("positions", x0, np.float64)
+        check_strand_geometry(x0, counts := self.groom.node_counts)
+        used = np.arange(x0.shape[1] - 1)[None, :] < (np.asarray(counts)[:, None] - 1)
+        shortest = float(np.linalg.norm(np.diff(x0, axis=1), axis=2)[used].min())
+        if not 0.0 < h <= 1e-3 * shortest:
+            raise ValueError(f"h must be in (0, 1e-3 x the shortest edge = {1e-3 * shortest:.3g}] m, got {h:g}")
         strands = list(strands)
-        counts = self.groom.node_counts
         n_max = max(counts[s] for s in strands)
         hessian = np.zeros((len(strands), 3 * n_max, 3 * n_max))
         for i in range(1, n_max):
@@ -225,10 +235,10 @@ class RodSystem:
                 for sign in (1.0, -1.0):
                     x = x0.copy()
                     x[rows, i, c] += sign * h
-                    self.set_positions(x)
+                    self._place(x)   # h <= 1e-3 of the shortest edge: no edge collapses
                     forces.append(self.elastic_forces()[strands, :n_max].reshape(len(strands), -1))
                 hessian[:, :, 3 * i + c] = -(forces[0] - forces[1]) / (2.0 * h)
-        self.set_positions(x0)
+        self._place(x0)
         return hessian
 
     def bending_stiffness(self, condensed: bool = True) -> np.ndarray:
