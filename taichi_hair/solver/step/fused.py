@@ -5,7 +5,7 @@ from dataclasses import asdict
 import taichi as ti
 
 from ...rods.arrays import Ints2, Vec3s1, Vec3s2
-from ...rods.spread import spread_factor
+from ...rods.spread import mixed_spread, mixed_strand
 from .bundles import ContactArgs, DriveArgs, gather_scalars, ModelArgs, ScalarArgs, StateArgs
 from .plan import BAD, STRIDE, StageFlags
 from .stages import STAGE_FUNCS, strand_place_root
@@ -18,12 +18,12 @@ def advance_strands(n_steps: int, fl: ti.template(), sa: ScalarArgs, md: ModelAr
     as in the module doc; tool_points[k] are the tools at the start of step k). With fl.strides
     strand s steps c = counters[s, STRIDE] of them at a time (c h [s] from every c-th step; c
     divides n_steps). counters[s, BAD] = the first step where strand s failed (that strand stops
-    there), -1 if none. One thread per strand."""
+    there), -1 if none. One thread per strand, the strands in a mixed order (rods.spread)."""
     sc = gather_scalars(sa)
-    factor = spread_factor(st.x.shape[0])
-    for t in range(st.x.shape[0] * factor):
-        if t % factor == 0:
-            s = t // factor
+    span, factor = mixed_spread(st.x.shape[0])
+    for t in range(span * factor):
+        s = mixed_strand(t, span, factor, st.x.shape[0])
+        if s >= 0:
             st.counters[s, BAD] = -1
             own = sc
             if ti.static(fl.strides):
@@ -54,12 +54,12 @@ def run_stages(first: ti.template(), last: ti.template(), fl: ti.template(), sa:
                st: StateArgs, dr: DriveArgs, co: ContactArgs):
     """Stages first..last-1 of STAGES for one step of every strand; counters[s, BAD] is reset
     by the launch that runs the first stage and set to 0 where a stage failed. One thread per
-    strand."""
+    strand, the strands in a mixed order (rods.spread)."""
     sc = gather_scalars(sa)
-    factor = spread_factor(st.x.shape[0])
-    for t in range(st.x.shape[0] * factor):
-        if t % factor == 0:
-            s = t // factor
+    span, factor = mixed_spread(st.x.shape[0])
+    for t in range(span * factor):
+        s = mixed_strand(t, span, factor, st.x.shape[0])
+        if s >= 0:
             if ti.static(first == 0):
                 st.counters[s, BAD] = -1
             for stage in ti.static(STAGE_FUNCS[first:last]):
