@@ -9,7 +9,7 @@ from .bundles import FibreTableArgs, HairArgs, LightSetArgs
 from .camera import f32, unit, vec3f, vec4f
 from .fibre_dual import DualConstants, dual_constants, dual_scattering_c
 from .fibre_lobes import fexp, fibre_constants, fibre_light, fibre_view, lobe_variance, sigma_coord
-from .threads import spread, spread_item
+from .threads import spread, spread_run
 
 # shading stride 2 interpolates a vertex only where its strand turns by at most this [deg]:
 # shading follows the tangent, and on the benchmark's wavy hair (11 px segments at 1280x720)
@@ -46,18 +46,15 @@ def shade_fibre_vertices(n: ti.i32, hair: HairArgs, n_chunks: ti.i32, lights: Li
     # roughness: each thread walks a run of vertices and recomputes the fibre's constants
     # (table coordinates, lobe constants, dual scattering's) only when they change; the same
     # inputs give the same bits, so the result does not depend on the runs
-    chunk = (n + n_chunks - 1) // n_chunks
     span, factor = spread(n_chunks)
     for step in range(span * factor):
-        ch = spread_item(step, span, factor, n_chunks)
-        if ch < 0:
-            continue
+        lo, hi = spread_run(step, span, factor, n, n_chunks)
         sg_k, bm_k = vec3f(-1.0, -1.0, -1.0), f32(-1.0)
         us, v0, cv = vec3f(0.0, 0.0, 0.0), f32(1.0), vec3f(0.0, 0.0, 0.0)
         dc = DualConstants(bf2=vec3f(0.0, 0.0, 0.0), a_back=vec3f(0.0, 0.0, 0.0),
                            shift=vec3f(0.0, 0.0, 0.0), var_b=vec3f(0.0, 0.0, 0.0),
                            log_af=vec3f(0.0, 0.0, 0.0))
-        for i in range(ch * chunk, ti.min(n, (ch + 1) * chunk)):
+        for i in range(lo, hi):
             if masked and mark[i] <= 0:
                 continue
             sg, bm = sigma[i], beta_m[i]

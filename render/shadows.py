@@ -20,7 +20,7 @@ from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
 from .runtime import buffer, chunks, on_cpu, upload
-from .threads import spread, spread_item
+from .threads import spread, spread_item, spread_run
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -323,14 +323,12 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), vie
     """out[row, i] = shadow_terms at x[i] [m] (one row per light), shapes (n,); masked: only
     where mark[i] > 0. n_chunks threads, each over a run of points, the runs in
     `threads.spread`'s mixed order (marked points come in runs)."""
-    chunk = (n + n_chunks - 1) // n_chunks
     span, factor = spread(n_chunks)
     for step in range(span * factor):
-        c = spread_item(step, span, factor, n_chunks)
-        if c >= 0:
-            for k in range(c * chunk, ti.min(n, (c + 1) * chunk)):
-                if not masked or mark[k] > 0:
-                    out[row, k] = shadow_terms(x[k], view, proj, sm, params)
+        lo, hi = spread_run(step, span, factor, n, n_chunks)
+        for k in range(lo, hi):
+            if not masked or mark[k] > 0:
+                out[row, k] = shadow_terms(x[k], view, proj, sm, params)
 
 
 @ti.kernel
@@ -355,13 +353,12 @@ def bounding_box(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), n_chunks: 
     for k in ti.static(range(3)):
         box[k] = f32(3.0e38)
         box[k + 3] = f32(-3.0e38)
-    chunk = (n + n_chunks - 1) // n_chunks
     span, factor = spread(n_chunks)   # fewer chunks than 512 per CPU thread: spread them
     for step in range(span * factor):
-        c = spread_item(step, span, factor, n_chunks)
-        if c >= 0:
+        first, end = spread_run(step, span, factor, n, n_chunks)
+        if first < end:
             lo, hi = vec3f(3.0e38, 3.0e38, 3.0e38), vec3f(-3.0e38, -3.0e38, -3.0e38)
-            for i in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+            for i in range(first, end):
                 lo = ti.min(lo, x[i])
                 hi = ti.max(hi, x[i])
             for k in ti.static(range(3)):

@@ -24,8 +24,8 @@ block has its share even when the items are fewer than 512 per thread (`spread_i
         if item >= 0:
             ...
 
-Items are rows or runs of consecutive pixels or vertices, each walked in order by one thread,
-so memory is still read in order within an item.
+Items are rows or runs of consecutive vertices or segments (`spread_run`), each walked in order
+by one thread, so memory is still read in order within an item.
 
 On a GPU the factor is 1 and `spread_item` keeps the items in order (`mixed` alone changes nothing
 but which thread does what).
@@ -76,3 +76,16 @@ def spread_item(t, span, factor, n):
         if u < n:
             item = u
     return item
+
+
+@ti.func
+def spread_run(t, span, factor, n, n_runs):
+    """Bounds [lo, hi) of the run of items that iteration t of a spread loop over n_runs runs
+    (`spread(n_runs)`) does: n items cut into n_runs consecutive runs, walked in order within
+    a run; (0, 0) for iterations that do none."""
+    lo, hi = 0, 0
+    r = spread_item(t, span, factor, n_runs)
+    if r >= 0:
+        size = (n + n_runs - 1) // n_runs
+        lo, hi = r * size, ti.min(n, (r + 1) * size)
+    return lo, hi

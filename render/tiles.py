@@ -29,7 +29,7 @@ import taichi as ti
 
 from .bundles import HairArgs, TileBinArgs
 from .camera import f32, vec3f, vec4f
-from .threads import mixed, spread, spread_item
+from .threads import mixed, spread, spread_run
 
 vec4i = ti.types.vector(4, ti.i32)
 
@@ -78,13 +78,12 @@ def depth_range(n: ti.i32, seg: ti.types.ndarray(dtype=ti.i32, ndim=1),
     n_chunks threads reduces a contiguous run in registers, then one atomic pair per chunk."""
     out[0] = f32(3.0e38)
     out[1] = f32(-3.0e38)
-    chunk = (n + n_chunks - 1) // n_chunks
     span, factor = spread(n_chunks)   # fewer chunks than 512 per CPU thread: spread them
     for step in range(span * factor):
-        c = spread_item(step, span, factor, n_chunks)
-        if c >= 0:
+        first, end = spread_run(step, span, factor, n, n_chunks)
+        if first < end:
             lo, hi = f32(3.0e38), f32(-3.0e38)
-            for e in range(c * chunk, ti.min(n, (c + 1) * chunk)):
+            for e in range(first, end):
                 a, b = screen[seg[e]], screen[seg[e] + 1]
                 if ti.min(a[2], b[2]) > near:
                     z = f32(0.5) * (a[2] + b[2])

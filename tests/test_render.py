@@ -699,3 +699,22 @@ def test_mixed_loop_order_visits_every_item_once_and_spreads_runs(n):
         early = np.nonzero(when.to_numpy() < steps // 2)[0]
         counts = np.histogram(early, bins=4, range=(0, n))[0]
         assert counts.min() > 0.6 * len(early) / 4, counts
+
+
+@ti.kernel
+def _visit_runs(n: ti.i32, n_runs: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+    span, factor = render.threads.spread(n_runs)
+    for step in range(span * factor):
+        lo, hi = render.threads.spread_run(step, span, factor, n, n_runs)
+        for i in range(lo, hi):
+            ti.atomic_add(seen[i], 1)
+
+
+@pytest.mark.parametrize("n, n_runs", [(1, 1), (5, 7), (1000, 64), (4097, 4096), (620001, 4096)])
+def test_spread_runs_cover_every_item_once(n, n_runs):
+    """`render.threads.spread_run` (points, reductions, fibre shading): the runs of a spread
+    loop cover 0..n-1 once each, whether runs outnumber items or not."""
+    seen = ti.ndarray(ti.i32, (n,))
+    seen.fill(0)
+    _visit_runs(n, n_runs, seen)
+    np.testing.assert_array_equal(seen.to_numpy(), np.ones(n, np.int32))
