@@ -18,9 +18,8 @@ from .camera import Camera, f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import EDGE_SAMPLES, empty_key, sub_pixel_edge
 from .shading import shade_surface
-from .runtime import on_cpu
 from .shadows import filtered_transmittance
-from .threads import spread, spread_item
+from .threads import spread_rows
 
 
 def _vec3(name: str, value) -> np.ndarray:
@@ -88,26 +87,16 @@ def shade_backdrop(pixels: MeshPixelArgs, cam_to_world: mat4f, proj: vec4f, plan
     times the pixel's background fraction. cam_to_world, proj: the camera (`camera_to_world`,
     `Camera.matrices` at the frame's scale); plane: the wall (`Backdrop.plane`); albedo:
     linear. One thread per pixel (CPU: per row)."""
-    height, width = pixels.pixel_base.shape[0], pixels.pixel_base.shape[1]
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(height)
-        for t in range(span * factor):
-            py = spread_item(t, span, factor, height)
-            if py >= 0:
-                for px in range(width):
-                    shade_backdrop_pixel(pixels, cam_to_world, proj, plane, albedo, to_light, light,
-                                         ambient, sview, sproj, sm, sparams, px, py)
-    else:
-        for py, px in ti.ndrange(height, width):
-            shade_backdrop_pixel(pixels, cam_to_world, proj, plane, albedo, to_light, light,
-                                 ambient, sview, sproj, sm, sparams, px, py)
+    spread_rows(pixels.pixel_base.shape[0], pixels.pixel_base.shape[1], shade_backdrop_pixel,
+                (pixels, cam_to_world, proj, plane, albedo, to_light, light, ambient, sview, sproj, sm,
+                 sparams))
 
 
 @ti.func
 def shade_backdrop_pixel(pixels: ti.template(), cam_to_world: mat4f, proj: vec4f, plane: vec4f,
                          albedo: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f,
                          sview: mat4f, sproj: vec4f, sm: ti.template(), sparams: vec4f,
-                         px: ti.i32, py: ti.i32):
+                         py: ti.i32, px: ti.i32):
     """`shade_backdrop` for pixel (px, py)."""
     base = ti.static(pixels.pixel_base)
     origin = cam_to_world @ vec4f(0.0, 0.0, 0.0, 1.0)

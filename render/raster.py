@@ -25,8 +25,7 @@ import numpy as np
 import taichi as ti
 
 from .camera import f32, vec3f, vec4f
-from .runtime import on_cpu
-from .threads import spread, spread_item
+from .threads import spread_rows
 
 vec2f = ti.types.vector(2, ti.f32)
 vec3i = ti.types.vector(3, ti.i32)
@@ -68,16 +67,12 @@ def clear_frame(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2),
 
 @ti.kernel
 def clear_keys_2d(key: ti.types.ndarray(dtype=ti.i64, ndim=2)):
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(key.shape[0])
-        for t in range(span * factor):
-            i = spread_item(t, span, factor, key.shape[0])
-            if i >= 0:
-                for j in range(key.shape[1]):
-                    key[i, j] = empty_key()
-    else:
-        for i, j in key:
-            key[i, j] = empty_key()
+    spread_rows(key.shape[0], key.shape[1], clear_key, (key,))
+
+
+@ti.func
+def clear_key(key: ti.template(), i: ti.i32, j: ti.i32):
+    key[i, j] = empty_key()
 
 
 @ti.func
@@ -157,18 +152,10 @@ def mark_mesh_edges(mesh_key: ti.types.ndarray(dtype=ti.i64, ndim=2), capacity: 
     8 neighbours differs in showing a mesh, in depth by over 2 %, or in which mesh it shows
     (part (F,): each face's mesh; where a neck meets a body, depth is continuous but the
     surfaces cross); -1 elsewhere (and past `capacity` slots). The slot's EDGE_SAMPLES^2 keys
-    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row, `runtime.on_cpu`)."""
-    height, width = mesh_key.shape[0], mesh_key.shape[1]
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(height)
-        for t in range(span * factor):
-            py = spread_item(t, span, factor, height)
-            if py >= 0:
-                for px in range(width):
-                    mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
-    else:
-        for py, px in mesh_key:
-            mark_mesh_edge(mesh_key, capacity, count, edge_index, sub_key, part, py, px)
+    are cleared; count[0]: slots taken (start at 0). One thread per pixel (CPU: per row,
+    `threads.spread_rows`)."""
+    spread_rows(mesh_key.shape[0], mesh_key.shape[1], mark_mesh_edge,
+                (mesh_key, capacity, count, edge_index, sub_key, part))
 
 
 @ti.func
@@ -462,17 +449,9 @@ def finish(scale: ti.i32, rgb: ti.types.ndarray(dtype=vec3f, ndim=2),
     (a little-endian (H, W, 4) uint8 view: one 32-bit word per pixel reads back several times
     faster than three bytes, and a 1-D array faster than a 2-D one, `unpack_image`); table:
     `srgb_table()`. One thread per output
-    pixel (CPU: per row, `runtime.on_cpu`)."""
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(out_alpha.shape[0])
-        for t in range(span * factor):
-            py = spread_item(t, span, factor, out_alpha.shape[0])
-            if py >= 0:
-                for px in range(out_alpha.shape[1]):
-                    finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
-    else:
-        for py, px in out_alpha:
-            finish_pixel(scale, rgb, alpha, out_rgb, out_alpha, image, table, py, px)
+    pixel (CPU: per row, `threads.spread_rows`)."""
+    spread_rows(out_alpha.shape[0], out_alpha.shape[1], finish_pixel,
+                (scale, rgb, alpha, out_rgb, out_alpha, image, table))
 
 
 @ti.func

@@ -53,13 +53,10 @@ def ensure_init() -> None:
 def on_cpu() -> bool:
     """True when Taichi runs on the CPU (x64 or arm64).
 
-    Kernels over an image or map test this in `ti.static` to loop over its rows in parallel
-    and along each row serially on the CPU: Taichi's 2-D loop (`for i, j in a`) decodes every
+    Kernels over an image or map loop over its rows in parallel and along each row serially on
+    the CPU (`threads.spread_rows`): Taichi's 2-D loop (`for i, j in a`) decodes every
     element's (i, j) with integer divisions, ~12 ns an element on the CPU, ten times a clear's
-    own work (512 x 512 int64 clear: 3.5 -> 0.37 ms). The rows go in `threads.spread`'s
-    mixed order: Taichi gives each CPU thread one block of at least 512 iterations, so a
-    plain loop over 480 rows runs on one thread, and in screen order the mesh's rows would
-    fall to one thread. GPUs keep one thread per element."""
+    own work (512 x 512 int64 clear: 3.5 -> 0.37 ms). GPUs keep one thread per element."""
     return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
 
 

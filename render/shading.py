@@ -23,9 +23,9 @@ from .camera import f32, mat4f, unit, vec3f, vec4f
 from .colour import srgb_colour, srgb_to_linear
 from .raster import (EDGE_SAMPLES, barycentric, empty_key, key_prim, perspective_weights, pixel_centre,
                      sub_pixel_centre, sub_pixel_edge)
-from .runtime import buffer, ensure_init, on_cpu, upload
+from .runtime import buffer, ensure_init, upload
 from .shadows import filtered_transmittance
-from .threads import spread, spread_item
+from .threads import spread_rows
 
 vec8f = ti.types.vector(8, ti.f32)
 
@@ -327,25 +327,15 @@ def shade_mesh(pixels: MeshPixelArgs, mesh: MeshArgs, eye: vec3f, to_light: vec3
     depth step of over 2 %: a silhouette, or two meshes: where they cross;
     `raster.sub_pixel_edge`) is the mean of its sub-pixels, each shaded on its own face; any
     other pixel is shaded once at its centre. One thread per pixel (CPU: per row)."""
-    height, width = pixels.pixel_base.shape[0], pixels.pixel_base.shape[1]
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(height)
-        for t in range(span * factor):
-            py = spread_item(t, span, factor, height)
-            if py >= 0:
-                for px in range(width):
-                    shade_mesh_pixel(pixels, mesh, eye, to_light, light, ambient, background, sview,
-                                     sproj, sm, sparams, first, px, py)
-    else:
-        for py, px in ti.ndrange(height, width):
-            shade_mesh_pixel(pixels, mesh, eye, to_light, light, ambient, background, sview, sproj,
-                             sm, sparams, first, px, py)
+    spread_rows(pixels.pixel_base.shape[0], pixels.pixel_base.shape[1], shade_mesh_pixel,
+                (pixels, mesh, eye, to_light, light, ambient, background, sview, sproj, sm, sparams,
+                 first))
 
 
 @ti.func
 def shade_mesh_pixel(pixels: ti.template(), mesh: ti.template(), eye: vec3f, to_light: vec3f,
                      light: vec3f, ambient: vec3f, background: vec3f, sview: mat4f, sproj: vec4f,
-                     sm: ti.template(), sparams: vec4f, first: ti.i32, px: ti.i32, py: ti.i32):
+                     sm: ti.template(), sparams: vec4f, first: ti.i32, py: ti.i32, px: ti.i32):
     """`shade_mesh` for pixel (px, py)."""
     mesh_key, edge_index, sub_key, base = ti.static(pixels.pixel_key, pixels.pixel_edge_index,
                                                     pixels.pixel_sub_key, pixels.pixel_base)

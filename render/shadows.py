@@ -19,8 +19,8 @@ import taichi as ti
 from .bundles import ShadowMapArgs
 from .camera import OrthoView, f32, mat4f, project, project_vertices, vec3f, vec4f
 from .raster import clear_keys_2d, key_depth, raster_triangles
-from .runtime import buffer, chunks, on_cpu, upload
-from .threads import spread, spread_item, spread_run
+from .runtime import buffer, chunks, upload
+from .threads import spread, spread_rows, spread_run
 
 # fixed-point steps per unit of opacity in the deep opacity map: a sample adds at most about 1
 # (one texel covered along one texel), so 2^24 keeps float32's resolution and a texel can sum
@@ -90,16 +90,7 @@ def clear_shadow(z0: ti.types.ndarray(dtype=f32, ndim=2),
                  fixed: ti.types.ndarray(dtype=ti.i64, ndim=3), full: ti.i32):
     """z0 = empty (no hair in front); full: also opacity and the fixed-point slabs = 0
     (otherwise `accumulate_slabs` of the last map left fixed at 0 and overwrites opacity)."""
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(z0.shape[0])
-        for t in range(span * factor):
-            i = spread_item(t, span, factor, z0.shape[0])
-            if i >= 0:
-                for j in range(z0.shape[1]):
-                    clear_texel(z0, opacity, fixed, full, i, j)
-    else:
-        for i, j in z0:
-            clear_texel(z0, opacity, fixed, full, i, j)
+    spread_rows(z0.shape[0], z0.shape[1], clear_texel, (z0, opacity, fixed, full))
 
 
 @ti.func
@@ -203,16 +194,7 @@ def accumulate_slabs(fixed: ti.types.ndarray(dtype=ti.i64, ndim=3),
     """Prefix-sum the slabs of each texel: opacity[i, j, k] = hair opacity up to slab k's end
     (from the fixed-point sums), and set the sums back to 0 for the next map: zeroing them
     here, while their cache lines are loaded, spares the next map a pass over them."""
-    if ti.static(on_cpu()):   # rows spread over the threads (`runtime.on_cpu`)
-        span, factor = spread(opacity.shape[0])
-        for t in range(span * factor):
-            i = spread_item(t, span, factor, opacity.shape[0])
-            if i >= 0:
-                for j in range(opacity.shape[1]):
-                    accumulate_texel(fixed, opacity, i, j)
-    else:
-        for i, j in ti.ndrange(opacity.shape[0], opacity.shape[1]):
-            accumulate_texel(fixed, opacity, i, j)
+    spread_rows(opacity.shape[0], opacity.shape[1], accumulate_texel, (fixed, opacity))
 
 
 @ti.func

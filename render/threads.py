@@ -89,3 +89,22 @@ def spread_run(t, span, factor, n, n_runs):
         size = (n + n_runs - 1) // n_runs
         lo, hi = r * size, ti.min(n, (r + 1) * size)
     return lo, hi
+
+
+@ti.func
+def spread_rows(height, width, pixel: ti.template(), args: ti.template()):
+    """pixel(*args, py, px) for every pixel of a (height, width) image or map: on the CPU each
+    row walked in order by one thread, the rows in the mixed order over the threads (a loop
+    over rows in screen order ran on one thread below 1,024 rows, and leaves uneven rows to
+    one thread); on a GPU one thread per pixel. Call it at a kernel's top level: its loop is
+    the kernel's parallel loop."""
+    if ti.static(cpu_threads() > 0):
+        span, factor = spread(height)
+        for t in range(span * factor):
+            py = spread_item(t, span, factor, height)
+            if py >= 0:
+                for px in range(width):
+                    pixel(*args, py, px)
+    else:
+        for py, px in ti.ndrange(height, width):
+            pixel(*args, py, px)
