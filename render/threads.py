@@ -24,8 +24,9 @@ block has its share even when the items are fewer than 512 per thread (`spread_i
         if item >= 0:
             ...
 
-Items are rows or runs of consecutive vertices or segments (`spread_run`), each walked in order
-by one thread, so memory is still read in order within an item.
+Items are rows (`spread_rows`, for the kernels over an image or a shadow map) or runs of
+consecutive vertices or segments (`spread_run`), each walked in order by one thread, so memory
+is still read in order within an item.
 
 On a GPU the factor is 1 and `spread_item` keeps the items in order (`mixed` alone changes nothing
 but which thread does what).

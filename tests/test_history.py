@@ -1,6 +1,8 @@
 """`taichi-hair bench --against REV` (app/history.py): the same bench from an older commit in a
 temporary worktree, alternating, with each row's ratio."""
 
+import os
+
 import pytest
 
 from taichi_hair.app import history
@@ -54,11 +56,15 @@ def test_bench_scene_needs_against():
 
 @pytest.mark.slow
 def test_scene_against_head_times_both_runs():
-    # a scene's run from both trees (HEAD against itself): wall time and the three per-frame
-    # medians its summary prints, each positive
+    # a scene's run from both trees (HEAD against itself): wall time, CPU time and the three
+    # per-frame medians its summary prints, each positive; CPU time at most what the machine's
+    # cores can give in the wall time
     result = history.compare("HEAD", [], rounds=1, scene="scenes/cantilever.py", frames=2)
     rows = {r["row"]: r for r in result["rows"]}
-    assert list(rows) == ["scenes/cantilever.py wall s (2 frames)", "simulation ms per frame",
-                          "interpolation ms per frame", "rendering ms per frame"]
+    assert list(rows) == ["scenes/cantilever.py wall s (2 frames)", "scenes/cantilever.py CPU s (2 frames)",
+                          "simulation ms per frame", "interpolation ms per frame", "rendering ms per frame"]
     assert all(r["this_ms"] > 0 and r["against_ms"] > 0 for name, r in rows.items() if "interpolation" not in name)
+    wall, cpu = rows["scenes/cantilever.py wall s (2 frames)"], rows["scenes/cantilever.py CPU s (2 frames)"]
+    for side in ("this_ms", "against_ms"):
+        assert cpu[side] <= wall[side] * (os.cpu_count() or 1) * 1.05 + 0.5, (cpu, wall)
     assert "taichi-hair run scenes/cantilever.py --frames 2" in history.format_comparison(result)

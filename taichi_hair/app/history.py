@@ -9,7 +9,9 @@ ratio is this tree's over the older one's (below 1: faster now). Only options th
 of the bench understands are passed on (strands, repeats, integrator, precision, full-head
 guides). A scene runs as `python -m taichi_hair run SCRIPT --frames N --no-progress` into a
 fresh folder, after one untimed frame in each tree (its kernels compiled into Taichi's offline
-cache); its rows are the run's wall time and the medians per frame its summary line prints.
+cache); its rows are the run's wall time, its CPU time (all threads; steadier than wall time
+when the machine's speed drifts, blind to what parallel work gains) and the medians per frame
+its summary line prints.
 """
 
 import json
@@ -82,21 +84,40 @@ def row_times(results: list) -> dict:
 
 def scene_times(tree: Path, script: str, frames: int) -> dict:
     """{row: value} of one run of `script` (a path inside the tree) from `tree`'s sources: its
-    wall time [s] and the median ms per frame of simulation, interpolation and rendering."""
+    wall time [s], its CPU time [s] (all its threads, user + system; where the platform
+    reports children's CPU time) and the median ms per frame of simulation, interpolation and
+    rendering. CPU time is steadier than wall time on a machine whose speed drifts under other
+    load, but it misses what more parallel work gains: the two rows answer different questions."""
     with tempfile.TemporaryDirectory(prefix="taichi_hair_scene_") as out:
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), _children_cpu()
         done = subprocess.run([sys.executable, "-m", "taichi_hair", "run", script, "--frames", str(frames),
                                "--no-progress", "--out", out], cwd=tree, env=tree_env(tree), capture_output=True,
                               text=True)
         wall = time.perf_counter() - start
+        cpu = None if cpu_start is None else _children_cpu() - cpu_start
     found = re.search(r"median ms per frame: simulation ([0-9.]+), interpolation ([0-9.]+), "
                       r"rendering ([0-9.]+)", done.stdout)
     if done.returncode != 0 or found is None:
         tail = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
         raise RuntimeError(f"`taichi-hair run {script}` failed in {tree}: {tail}")
     sim, interp, render = map(float, found.groups())
-    return {f"{script} wall s ({frames} frames)": wall, "simulation ms per frame": sim,
-            "interpolation ms per frame": interp, "rendering ms per frame": render}
+    rows = {f"{script} wall s ({frames} frames)": wall}
+    if cpu is not None:
+        rows[f"{script} CPU s ({frames} frames)"] = cpu
+    rows.update({"simulation ms per frame": sim, "interpolation ms per frame": interp,
+                 "rendering ms per frame": render})
+    return rows
+
+
+def _children_cpu() -> float | None:
+    """User + system CPU seconds of this process's finished children, None where the platform
+    has no `resource` module (Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def check_scene(script: str) -> str:
