@@ -87,20 +87,20 @@ def shade_backdrop(pixels: MeshPixelArgs, cam_to_world: mat4f, proj: vec4f, plan
     times the pixel's background fraction. cam_to_world, proj: the camera (`camera_to_world`,
     `Camera.matrices` at the frame's scale); plane: the wall (`Backdrop.plane`); albedo:
     linear. One thread per pixel (CPU: per row)."""
+    origin = cam_to_world @ vec4f(0.0, 0.0, 0.0, 1.0)
+    eye = vec3f(origin[0], origin[1], origin[2])
     spread_rows(pixels.pixel_base.shape[0], pixels.pixel_base.shape[1], shade_backdrop_pixel,
-                (pixels, cam_to_world, proj, plane, albedo, to_light, light, ambient, sview, sproj, sm,
-                 sparams))
+                (pixels, cam_to_world, eye, proj, plane, albedo, to_light, light, ambient, sview, sproj,
+                 sm, sparams))
 
 
 @ti.func
-def shade_backdrop_pixel(pixels: ti.template(), cam_to_world: mat4f, proj: vec4f, plane: vec4f,
-                         albedo: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f,
+def shade_backdrop_pixel(pixels: ti.template(), cam_to_world: mat4f, eye: vec3f, proj: vec4f,
+                         plane: vec4f, albedo: vec3f, to_light: vec3f, light: vec3f, ambient: vec3f,
                          sview: mat4f, sproj: vec4f, sm: ti.template(), sparams: vec4f,
                          py: ti.i32, px: ti.i32):
-    """`shade_backdrop` for pixel (px, py)."""
+    """`shade_backdrop` for pixel (px, py); eye [m]: the camera's position."""
     base = ti.static(pixels.pixel_base)
-    origin = cam_to_world @ vec4f(0.0, 0.0, 0.0, 1.0)
-    eye = vec3f(origin[0], origin[1], origin[2])
     n = vec3f(plane[0], plane[1], plane[2])
     frac = background_fraction(pixels, px, py)
     if frac > 0.0:

@@ -183,7 +183,8 @@ def _shade_hair_kajiya_kay(hd: dict, eye, light, ambient, first: bool,
     lights); masked: only the vertices marked in hd["mark"]."""
     irradiance = np.asarray(light.irradiance_rgb, np.float32)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
-                         smap.params, int(masked), hd["mark"], hd["shadow"])
+                         smap.params, int(masked), hd["mark"], chunks(hd["n_vertices"], 4096, 1),
+                         hd["shadow"])
     shade_hair_vertices(hd["n_vertices"], hd["args"], hd["opacity"], eye, light.to_light,
                         irradiance / np.float32(np.pi), ambient, int(first),
                         settings.hair_shading.packed(), int(masked))
@@ -373,7 +374,7 @@ def hair_shadow(hair: Hair, *, meshes=(), lighting: Lighting = Lighting(),
     hd, md = _upload_hair(hair), _upload_meshes(list(meshes))
     smap = build_shadow_map(shadows, lighting.key.to_light, hd, md if md["n_faces"] else None)
     points_transmittance(hd["n_vertices"], hd["x"], smap.view, smap.proj, smap.args(),
-                         smap.params, 0, hd["mark"], hd["shadow"])
+                         smap.params, 0, hd["mark"], chunks(hd["n_vertices"], 4096, 1), hd["shadow"])
     shadow = np.empty(hd["n_vertices"], np.float32)
     shadow[hd["order"]] = hd["shadow"].to_numpy()[: hd["n_vertices"]]
     return shadow

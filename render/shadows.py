@@ -316,14 +316,16 @@ def points_shadow_terms(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), vie
 @ti.kernel
 def points_transmittance(n: ti.i32, x: ti.types.ndarray(dtype=vec3f, ndim=1), view: mat4f,
                          proj: vec4f, sm: ShadowMapArgs, params: vec4f, masked: ti.i32,
-                         mark: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                         mark: ti.types.ndarray(dtype=ti.i32, ndim=1), n_chunks: ti.i32,
                          out: ti.types.ndarray(dtype=f32, ndim=1)):
-    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] > 0. One
-    thread per point."""
-    for k in range(n):
-        if masked and mark[k] <= 0:
-            continue
-        out[k] = transmittance(x[k], view, proj, sm, params)
+    """out[i] = transmittance at x[i] [m], shapes (n,); masked: only where mark[i] > 0.
+    n_chunks threads over runs of points, as `points_shadow_terms`."""
+    span, factor = spread(n_chunks)
+    for step in range(span * factor):
+        lo, hi = spread_run(step, span, factor, n, n_chunks)
+        for k in range(lo, hi):
+            if not masked or mark[k] > 0:
+                out[k] = transmittance(x[k], view, proj, sm, params)
 
 
 @ti.kernel
